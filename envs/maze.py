@@ -1,0 +1,234 @@
+"""The paper's multi-task continuous maze: 25 tasks sharing one dynamics."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from envs.dynamics import DEFAULT_WALLS, MAZE_SIZE, cell_of, make_walls, maze_step
+
+__all__ = [
+    "CORNER_TASKS",
+    "N_TASKS",
+    "SharedDynamicsMaze",
+    "expected_reward",
+    "task_cell",
+    "task_index",
+    "task_indices",
+]
+
+N_TASKS = MAZE_SIZE * MAZE_SIZE
+TASK_SCHEDULES = ("fixed", "round_robin", "random")
+Task = int | tuple[int, int]
+
+
+def task_index(task: Task) -> int:
+    """
+    The index ``5 (i - 1) + (j - 1)`` of task tau_ij, given as ``(i, j)`` with i, j in 1..5 or as an index.
+
+    :raises ValueError: naming ``task`` for anything else
+    """
+    if isinstance(task, (int, np.integer)) and not isinstance(task, bool):
+        if 0 <= task < N_TASKS:
+            return int(task)
+    elif isinstance(task, (tuple, list, np.ndarray)) and len(task) == 2:
+        i, j = task
+        integers = all(isinstance(k, (int, np.integer)) and not isinstance(k, bool) for k in (i, j))
+        if integers and 1 <= i <= MAZE_SIZE and 1 <= j <= MAZE_SIZE:
+            return MAZE_SIZE * (int(i) - 1) + (int(j) - 1)
+    raise ValueError(
+        f"task must be (i, j) with i, j in 1..{MAZE_SIZE} or an index in 0..{N_TASKS - 1}, got {task!r}"
+    )
+
+
+def task_cell(index: int) -> tuple[int, int]:
+    """The cell ``(i, j)`` rewarded by the task of this index."""
+    index = task_index(index)
+    return index // MAZE_SIZE + 1, index % MAZE_SIZE + 1
+
+
+CORNER_TASKS = tuple(task_index(cell) for cell in ((1, 1), (1, 5), (5, 1), (5, 5)))
+
+
+def task_indices(tasks: str | Iterable[Task]) -> tuple[int, ...]:
+    """The task indices of ``"all"``, ``"corners"`` or a list of tasks."""
+    if isinstance(tasks, str):
+        if tasks == "all":
+            return tuple(range(N_TASKS))
+        if tasks == "corners":
+            return CORNER_TASKS
+        raise ValueError(f"tasks must be 'all', 'corners' or a list of tasks, got {tasks!r}")
+    indices = tuple(task_index(task) for task in tasks)
+    if not indices:
+        raise ValueError("tasks must name at least one task")
+    return indices
+
+
+def expected_reward(states: np.ndarray, task: Task) -> np.ndarray:
+    """
+    The noise-free expected reward E[R_tau(s)] of eq. 12: 1 in the task's cell, 0 elsewhere.
+
+    :param states: (n, 2) states
+    :param task: the task, ``(i, j)`` or index
+    :return: (n,) expected rewards
+    """
+    i, j = task_cell(task_index(task))
+    cells = cell_of(states)
+    return ((cells[:, 0] == i) & (cells[:, 1] == j)).astype(np.float64)
+
+
+class SharedDynamicsMaze(gym.Env):
+    """
+    ## Description
+    The navigation problem of Laroche & Barlier, "Transfer Reinforcement Learning with Shared Dynamics"
+    (AAAI 2017), section 4: an agent moves with noisy steps in a continuous 5x5 maze, and each of 25 tasks
+    rewards one cell. All tasks share the dynamics; only the reward differs.
+
+    The paper's walls are only shown in a figure that is not available as text: the default interior
+    walls (x = 3 for y in [0, 3], x = 4 for y in [2, 4]) are those of the first author's later 5x5 maze.
+
+    ## Action Space
+    `Discrete(4)`: 0 NORTH (y - 1), 1 WEST (x - 1), 2 SOUTH (y + 1), 3 EAST (x + 1). A move is 1 along the
+    action's axis plus N(0, 0.5) noise on it, and N(0, 0.25) noise on the other axis (standard
+    deviations). A move stops where it first meets a wall and rebounds by U(0.1, 0.5) into the side it
+    came from, until it crosses no wall (see `envs.dynamics`).
+
+    ## Observation Space
+    `Dict({"state": Box(0, 5, (2,), float32), "task": Discrete(25)})`: the position `(x, y)` in the open
+    square (0, 5)^2 (y grows southwards) and the global index `5 (i - 1) + (j - 1)` of the current task.
+
+    ## Starting State
+    Uniform in the square, at every reset.
+
+    ## Rewards
+    Task tau_ij (eq. 12) draws the reward of a transition for the state s_t it starts from:
+    `1 + N(0, reward_noise_std)` if `i = ceil(x_t)` and `j = ceil(y_t)`, `N(0, reward_noise_std)` elsewhere.
+    `expected_reward(states, task)` gives the noise-free expectation.
+
+    ## Episode End
+    After each step the trajectory ends with probability `termination_prob` (0.02). This is a reset, not an
+    absorbing state, so it is returned as `truncated=True` and `terminated` is always False. A time limit
+    comes from `gym.make(..., max_episode_steps=50)`.
+
+    ## Arguments
+    - `task`: the task, `(i, j)` or index (default `(1, 1)`); or
+    - `tasks`: several tasks, a list, `"all"` or `"corners"`, with `task_schedule` `"fixed"` (the first),
+      `"round_robin"` (in turn, one trajectory each) or `"random"` choosing the task of each trajectory.
+      `reset(options={"task": ...})` forces one.
+    - `walls`: axis-aligned segments `((x0, y0), (x1, y1))` on the integer grid; `()` for an open grid.
+    - `termination_prob`, `reward_noise_std`, `along_noise_std`, `across_noise_std`.
+    - `render_mode`: `"rgb_array"`: walls in black, the target cell in green, the trajectory since the
+      last reset as a blue broken line.
+
+    ## Version History
+    - v0: initial version.
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 4}
+
+    def __init__(
+        self,
+        task: Task | None = None,
+        tasks: str | Sequence[Task] | None = None,
+        task_schedule: str = "fixed",
+        walls: Iterable = DEFAULT_WALLS,
+        termination_prob: float = 0.02,
+        reward_noise_std: float = 1.0,
+        along_noise_std: float = 0.5,
+        across_noise_std: float = 0.25,
+        render_mode: str | None = None,
+    ):
+        if task is not None and tasks is not None:
+            raise ValueError("pass either task or tasks, not both")
+        self.tasks = (
+            task_indices(tasks) if tasks is not None else (task_index((1, 1) if task is None else task),)
+        )
+        if task_schedule not in TASK_SCHEDULES:
+            raise ValueError(f"task_schedule must be one of {TASK_SCHEDULES}, got {task_schedule!r}")
+        if not 0.0 <= termination_prob <= 1.0:
+            raise ValueError(f"termination_prob must be a probability in [0, 1], got {termination_prob}")
+        for name, value in (
+            ("reward_noise_std", reward_noise_std),
+            ("along_noise_std", along_noise_std),
+            ("across_noise_std", across_noise_std),
+        ):
+            if not value >= 0:
+                raise ValueError(f"{name} must be >= 0, got {value}")
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(
+                f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}"
+            )
+        self.task_schedule = task_schedule
+        self.walls = make_walls(walls)
+        self.termination_prob = termination_prob
+        self.reward_noise_std = reward_noise_std
+        self.along_noise_std = along_noise_std
+        self.across_noise_std = across_noise_std
+        self.render_mode = render_mode
+        self.observation_space = spaces.Dict(
+            {
+                "state": spaces.Box(0.0, float(MAZE_SIZE), shape=(2,), dtype=np.float32),
+                "task": spaces.Discrete(N_TASKS),
+            }
+        )
+        self.action_space = spaces.Discrete(4)
+        self.task = self.tasks[0]
+        self.state = np.full(2, MAZE_SIZE / 2)
+        self.trajectory: list[np.ndarray] = []
+        self._n_resets = 0
+
+    def expected_reward(self, states: np.ndarray, task: Task | None = None) -> np.ndarray:
+        """Noise-free E[R_task(s)] for an ``(n, 2)`` array of states (default: the current task)."""
+        return expected_reward(states, self.task if task is None else task)
+
+    def _observation(self) -> dict[str, Any]:
+        return {"state": self.state.astype(np.float32), "task": self.task}
+
+    def _info(self) -> dict[str, Any]:
+        i, j = cell_of(self.state)[0]
+        return {"task": self.task, "cell": (int(i), int(j))}
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        super().reset(seed=seed)
+        if options and options.get("task") is not None:
+            self.task = task_index(options["task"])
+        elif self.task_schedule == "round_robin":
+            self.task = self.tasks[self._n_resets % len(self.tasks)]
+        elif self.task_schedule == "random":
+            self.task = self.tasks[int(self.np_random.integers(len(self.tasks)))]
+        else:
+            self.task = self.tasks[0]
+        self._n_resets += 1
+        self.state = self.np_random.uniform(0.0, MAZE_SIZE, size=2)
+        self.trajectory = [self.state.copy()]
+        return self._observation(), self._info()
+
+    def step(self, action):
+        if not self.action_space.contains(action):
+            raise ValueError(f"action must be an integer in 0..3 (NORTH, WEST, SOUTH, EAST), got {action!r}")
+        # The reward is drawn for the state the transition starts from (eq. 12 on s_t).
+        reward = self.expected_reward(self.state[None])[0] + self.reward_noise_std * self.np_random.normal()
+        self.state = maze_step(
+            self.state[None],
+            np.array([int(action)]),
+            self.np_random,
+            self.walls,
+            self.along_noise_std,
+            self.across_noise_std,
+        )[0]
+        self.trajectory.append(self.state.copy())
+        truncated = bool(self.np_random.random() < self.termination_prob)
+        return self._observation(), float(reward), False, truncated, self._info()
+
+    def render(self):
+        if self.render_mode != "rgb_array":
+            return None
+        from envs.rendering import render_maze
+
+        return render_maze(
+            self.walls, target_cells=[task_cell(self.task)], trajectory=np.array(self.trajectory)
+        )

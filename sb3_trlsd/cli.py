@@ -1,0 +1,73 @@
+"""The ``sb3-trlsd`` command line: one subcommand per job."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from collections.abc import Sequence
+
+import gymnasium as gym
+import numpy as np
+
+import envs
+
+__all__ = ["main"]
+
+
+def parse_task(text: str) -> int | tuple[int, int]:
+    """``"1,5"`` -> (1, 5) (the paper's tau_15); ``"4"`` -> task index 4."""
+    try:
+        parts = tuple(int(part) for part in text.split(","))
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(
+            f"a task is 'i,j' with i, j in 1..5 or an index 0..24, got {text!r}"
+        ) from error
+    if len(parts) == 1:
+        return parts[0]
+    if len(parts) == 2:
+        return parts[0], parts[1]
+    raise argparse.ArgumentTypeError(f"a task is 'i,j' or an index, got {text!r}")
+
+
+def render_command(args: argparse.Namespace) -> int:
+    """Render the maze with one random trajectory of the given task to a PNG."""
+    env = gym.make(envs.MAZE_ID, task=args.task, render_mode="rgb_array", termination_prob=0.0)
+    env.action_space.seed(args.seed)
+    env.reset(seed=args.seed)
+    for _ in range(args.steps):
+        env.step(env.action_space.sample())
+    image = env.render()
+    env.close()
+    directory = os.path.dirname(os.path.abspath(args.out))
+    os.makedirs(directory, exist_ok=True)
+    from matplotlib.image import imsave
+
+    imsave(args.out, np.asarray(image))
+    print(f"maze with a random trajectory of {args.steps} steps written to {os.path.abspath(args.out)}")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="sb3-trlsd",
+        description="Transfer RL with Shared Dynamics (Laroche & Barlier, AAAI 2017) on Stable-Baselines3.",
+    )
+    commands = parser.add_subparsers(dest="command", required=True)
+    render = commands.add_parser("render", help="draw the maze with a random trajectory to a PNG")
+    render.add_argument("--out", default="results/maze.png", help="PNG file to write (default: %(default)s)")
+    render.add_argument("--task", type=parse_task, default=(1, 5), help="target cell 'i,j' drawn in green")
+    render.add_argument("--steps", type=int, default=30, help="random steps of the trajectory drawn in blue")
+    render.add_argument("--seed", type=int, default=0, help="seed of the env and of the random policy")
+    render.set_defaults(run=render_command)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``sb3-trlsd`` console script."""
+    args = build_parser().parse_args(argv)
+    try:
+        return args.run(args)
+    except ValueError as error:
+        print(f"sb3-trlsd {args.command}: error: {error}", file=sys.stderr)
+        return 2
