@@ -1,0 +1,172 @@
+"""Transition sets: collected with a random policy, saved to and loaded from ``.npz`` files.
+
+A transition here is the paper's xi_tau = <tau, s, a, r, s'> (section 2) plus the two flags SB3
+keeps: whether the trajectory was truncated after it (a reset: learners bootstrap through it) or
+terminated (an absorbing state: they do not).
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, fields
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+from tqdm.auto import tqdm
+
+__all__ = ["Transitions", "collect_transitions"]
+
+
+@dataclass(frozen=True)
+class Transitions:
+    """
+    A batch of transitions of one or several tasks sharing the same dynamics.
+
+    :param states: start states s, shape (n, d)
+    :param actions: discrete actions a, shape (n,)
+    :param next_states: states s' reached, shape (n, d)
+    :param rewards: observed rewards r, shape (n,)
+    :param tasks: task index tau of the trajectory each transition belongs to, shape (n,)
+    :param truncations: the trajectory was reset after this transition (bootstrap through it), shape (n,)
+    :param terminations: s' is absorbing (no bootstrap), shape (n,); all False on the maze
+    """
+
+    states: np.ndarray
+    actions: np.ndarray
+    next_states: np.ndarray
+    rewards: np.ndarray
+    tasks: np.ndarray
+    truncations: np.ndarray
+    terminations: np.ndarray
+
+    def __post_init__(self) -> None:
+        n = len(self.actions)
+        for field in fields(self):
+            value = np.asarray(getattr(self, field.name))
+            if value.dtype == object:
+                raise ValueError(f"Transitions.{field.name} must be a numeric array, got dtype object")
+            object.__setattr__(self, field.name, value)
+            if len(value) != n:
+                raise ValueError(
+                    f"Transitions.{field.name} has {len(value)} rows but actions has {n}: "
+                    "every array must hold one row per transition"
+                )
+        if self.states.ndim != 2 or self.next_states.shape != self.states.shape:
+            raise ValueError(
+                "Transitions.states and next_states must both have shape (n, state_dim), "
+                f"got {self.states.shape} and {self.next_states.shape}"
+            )
+        for name in ("actions", "rewards", "tasks", "truncations", "terminations"):
+            if getattr(self, name).ndim != 1:
+                raise ValueError(f"Transitions.{name} must have shape (n,), got {getattr(self, name).shape}")
+        if not np.issubdtype(self.actions.dtype, np.integer) or not np.issubdtype(
+            self.tasks.dtype, np.integer
+        ):
+            raise ValueError("Transitions.actions and tasks must be integer arrays")
+        for name in ("states", "next_states", "rewards"):
+            if not np.all(np.isfinite(getattr(self, name))):
+                raise ValueError(f"Transitions.{name} contains NaN or infinite values")
+
+    def __len__(self) -> int:
+        return len(self.actions)
+
+    @property
+    def state_dim(self) -> int:
+        return self.states.shape[1]
+
+    def save(self, path: str | os.PathLike) -> None:
+        """
+        Save the transitions as an uncompressed ``.npz`` file (one array per field).
+
+        :param path: destination file; numpy appends ``.npz`` if it is missing
+        """
+        np.savez(path, **{field.name: getattr(self, field.name) for field in fields(self)})
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> Transitions:
+        """
+        Load transitions saved by :meth:`save`.
+
+        :param path: a ``.npz`` file written by :meth:`save`
+        :return: the transitions, validated
+        :raises ValueError: if the file lacks a field or its arrays are inconsistent
+        """
+        with np.load(path, allow_pickle=False) as archive:
+            names = [field.name for field in fields(cls)]
+            missing = sorted(set(names) - set(archive.files))
+            if missing:
+                raise ValueError(
+                    f"{os.fspath(path)!r} is not a transitions file: it lacks the arrays {missing} "
+                    f"(expected {names})"
+                )
+            return cls(**{name: archive[name] for name in names})
+
+    def concatenate(self, other: Transitions) -> Transitions:
+        """Both sets of transitions, ``self`` first."""
+        return Transitions(
+            **{f.name: np.concatenate([getattr(self, f.name), getattr(other, f.name)]) for f in fields(self)}
+        )
+
+
+def split_observation(obs: dict[str, np.ndarray] | np.ndarray) -> tuple[np.ndarray, int]:
+    """
+    The state and task of an observation: ``obs["state"], obs["task"]`` for a Dict observation, ``obs, 0``
+    for a plain Box one (a single task).
+    """
+    if isinstance(obs, dict):
+        return np.asarray(obs["state"]), int(obs["task"])
+    return np.asarray(obs), 0
+
+
+def collect_transitions(
+    env: gym.Env, n_transitions: int, seed: int | None = None, progress_bar: bool = False
+) -> Transitions:
+    """
+    Collect transitions with a uniformly random policy, resetting the env whenever a trajectory ends.
+
+    This is how the paper builds its source set Xi (section 4: 25,000 transitions, 2% termination,
+    uniform reset); the rewards of the env's task are kept, ``TRLSD.load_transitions`` decides whether
+    to use them.
+
+    :param env: a Gymnasium env with a Discrete action space and a Box (or ``{"state", "task"}`` Dict)
+        observation space
+    :param n_transitions: how many transitions to collect
+    :param seed: seeds the env's reset and the random policy
+    :param progress_bar: show a tqdm progress bar
+    :return: the collected transitions
+    """
+    if n_transitions < 1:
+        raise ValueError(f"n_transitions must be a positive integer, got {n_transitions}")
+    if not isinstance(env.action_space, spaces.Discrete):
+        raise ValueError(f"collect_transitions needs a Discrete action space, got {env.action_space}")
+    env.action_space.seed(seed)
+    obs, _ = env.reset(seed=seed)
+    state, task = split_observation(obs)
+    columns: dict[str, list] = {field.name: [] for field in fields(Transitions)}
+    for _ in tqdm(range(n_transitions), disable=not progress_bar, desc="collecting transitions"):
+        action = env.action_space.sample()
+        obs, reward, terminated, truncated, _ = env.step(action)
+        next_state, _ = split_observation(obs)
+        for name, value in (
+            ("states", state),
+            ("actions", action),
+            ("next_states", next_state),
+            ("rewards", reward),
+            ("tasks", task),
+            ("truncations", truncated and not terminated),
+            ("terminations", terminated),
+        ):
+            columns[name].append(value)
+        if terminated or truncated:
+            obs, _ = env.reset()
+        state, task = split_observation(obs)
+    return Transitions(
+        states=np.asarray(columns["states"], dtype=np.float64),
+        actions=np.asarray(columns["actions"], dtype=np.int64),
+        next_states=np.asarray(columns["next_states"], dtype=np.float64),
+        rewards=np.asarray(columns["rewards"], dtype=np.float64),
+        tasks=np.asarray(columns["tasks"], dtype=np.int64),
+        truncations=np.asarray(columns["truncations"], dtype=bool),
+        terminations=np.asarray(columns["terminations"], dtype=bool),
+    )
