@@ -1,0 +1,35 @@
+"""sb3-trlsd: Transfer Reinforcement Learning with Shared Dynamics (Laroche & Barlier, AAAI 2017) for SB3.
+
+Importing the package registers the maze, ``TRLSD/SharedDynamicsMaze-v0``.
+"""
+
+import envs  # noqa: F401  (registers TRLSD/SharedDynamicsMaze-v0)
+from sb3_trlsd.buffers import SharedDynamicsReplayBuffer
+from sb3_trlsd.data import Transitions, collect_transitions
+from sb3_trlsd.features import RBFGrid
+from sb3_trlsd.policies import LinearPolicy, MlpPolicy
+from sb3_trlsd.reward_heads import (
+    KnownRewardHead,
+    RewardHead,
+    RidgeRewardHead,
+    TabularRewardHead,
+    make_reward_head,
+)
+from sb3_trlsd.trlsd import TRLSD
+from sb3_trlsd.version import __version__
+
+__all__ = [
+    "TRLSD",
+    "KnownRewardHead",
+    "LinearPolicy",
+    "MlpPolicy",
+    "RBFGrid",
+    "RewardHead",
+    "RidgeRewardHead",
+    "SharedDynamicsReplayBuffer",
+    "TabularRewardHead",
+    "Transitions",
+    "__version__",
+    "collect_transitions",
+    "make_reward_head",
+]

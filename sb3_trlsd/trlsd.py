@@ -1,0 +1,353 @@
+"""TRLSD: transfer reinforcement learning with shared dynamics, as an SB3 off-policy algorithm."""
+
+from __future__ import annotations
+
+import copy
+import os
+from collections.abc import Callable
+from functools import partial
+from typing import Any, ClassVar, TypeVar
+
+import numpy as np
+import torch as th
+from gymnasium import spaces
+from stable_baselines3.common.noise import ActionNoise
+from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
+from stable_baselines3.common.policies import BasePolicy
+from stable_baselines3.common.type_aliases import GymEnv, Schedule
+
+from sb3_trlsd.buffers import SharedDynamicsReplayBuffer, state_space_of
+from sb3_trlsd.data import Transitions
+from sb3_trlsd.features import RBFGrid
+from sb3_trlsd.policies import LinearPolicy, MlpPolicy, TaskQPolicy
+from sb3_trlsd.reward_heads import REWARD_HEAD_NAMES, RewardHead, make_reward_head
+
+__all__ = ["TRLSD"]
+
+SelfTRLSD = TypeVar("SelfTRLSD", bound="TRLSD")
+UncertaintyFn = Callable[[np.ndarray], np.ndarray]
+
+
+class TRLSD(OffPolicyAlgorithm):
+    """
+    Transfer Reinforcement Learning with Shared Dynamics (TRLSD).
+
+    Paper: Laroche & Barlier, "Transfer Reinforcement Learning with Shared Dynamics", AAAI 2017.
+    Every transition of every task goes to one shared replay buffer; for a target task, the rewards of
+    the whole buffer are replaced by an optimistic reward proxy R~ = R^ + CI learnt from that task's own
+    samples (section 3), and the task's Q-function is refitted on that relabelled set by Fitted-Q
+    Iteration (Algorithm 1). A task's Q is refitted at its first step and then whenever the confidence
+    interval at an encountered state has been divided by ``update_ratio`` since its last refit.
+
+    Defaults are the paper's (section 4) where it gives them: kappa and sigma of the continuous setting,
+    ``update_ratio=2``, lambda = 1 for the reward regression, 5x5 RBFs of width 0.2. The paper does not
+    give the discount factor: ``gamma=0.9`` makes the maze's reward cell worth reaching from anywhere in the
+    5x5 grid (its effective horizon of ~10 steps covers the longest path around the walls) while keeping
+    the fixed-point iterations of FQI short.
+
+    :param policy: ``"LinearPolicy"`` (the paper's linear Q on RBF features) or ``"MlpPolicy"``
+    :param env: the environment (Gymnasium env, VecEnv with one env, or registered id); observations are a
+        state Box, or a ``{"state": Box, "task": Discrete}`` Dict for several tasks
+    :param gamma: discount factor
+    :param reward_head: how R~ is learnt: ``"ridge"`` (continuous setting, eq. 9), ``"tabular"`` (the
+        maze's 25 cells, eq. 10), ``"corners"`` (tabular with the prior that only the 4 corner cells are
+        rewarded), ``"known"`` (the true expected reward, CI = 0), or a ``RewardHead`` instance copied for
+        each task
+    :param kappa: optimism (eq. 9, 10); 0 is the non-optimistic method of Atkeson & Santamaria
+    :param sigma: width of the similarity of eq. 6 / 7 in the neighbouring weight W (eq. 8)
+    :param similarity: ``"state"`` (eq. 6, on states) or ``"features"`` (eq. 7, on RBF features)
+    :param update_ratio: a task's Q is refitted when the CI at an encountered state has been divided by
+        this since the last refit (> 1)
+    :param fqi_max_iterations: cap on Fitted-Q iterations per refit (None: the policy's own default)
+    :param fqi_tol: Fitted-Q stops when the parameters move by less than this
+    :param rbf_per_dim: RBF centres per state dimension for the features Phi (policy and ridge head)
+    :param rbf_sigma: width of the RBF features (eq. 11)
+    :param reward_fn: ``reward_fn(states, task)``, the expected reward for the ``"known"`` head; by default
+        the env's ``expected_reward`` method
+    :param reward_head_kwargs: extra arguments of the reward heads (e.g. ``w_floor``, ``r_max``)
+    :param learning_rate: learning rate of the MLP policy's regression steps (unused by the linear one)
+    :param buffer_size: size of the shared replay buffer
+    :param learning_starts: steps of uniformly random actions before the first refit
+    :param train_freq: refit the tasks that are due every ``train_freq`` steps (or ``(n, "episode")``)
+    :param gradient_steps: refits per training round when due (0 disables training)
+    :param replay_buffer_class: a ``SharedDynamicsReplayBuffer`` subclass (default: that class)
+    :param replay_buffer_kwargs: keyword arguments of the replay buffer
+    :param policy_kwargs: keyword arguments of the policy
+    :param stats_window_size: window of the rollout logging
+    :param tensorboard_log: the log location for tensorboard (if None, no logging)
+    :param verbose: 0 no output, 1 info, 2 debug
+    :param seed: seed of the pseudo random generators
+    :param device: PyTorch device (the linear fit runs in numpy on the CPU)
+    :param _init_setup_model: whether or not to build the model on creation
+    """
+
+    policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {
+        "LinearPolicy": LinearPolicy,
+        "MlpPolicy": MlpPolicy,
+    }
+    policy: TaskQPolicy
+    replay_buffer: SharedDynamicsReplayBuffer
+    features: RBFGrid
+    reward_heads: dict[int, RewardHead]
+    policy_updates: dict[int, int]
+
+    def __init__(
+        self,
+        policy: str | type[TaskQPolicy],
+        env: GymEnv | str | None,
+        gamma: float = 0.9,
+        reward_head: str | RewardHead = "ridge",
+        kappa: float = 0.1,
+        sigma: float = 0.2,
+        similarity: str = "state",
+        update_ratio: float = 2.0,
+        fqi_max_iterations: int | None = None,
+        fqi_tol: float = 1e-6,
+        rbf_per_dim: int = 5,
+        rbf_sigma: float = 0.2,
+        reward_fn: Callable[[np.ndarray, int], np.ndarray] | None = None,
+        reward_head_kwargs: dict[str, Any] | None = None,
+        learning_rate: float | Schedule = 1e-3,
+        buffer_size: int = 1_000_000,
+        learning_starts: int = 0,
+        train_freq: int | tuple[int, str] = 1,
+        gradient_steps: int = 1,
+        replay_buffer_class: type[SharedDynamicsReplayBuffer] | None = None,
+        replay_buffer_kwargs: dict[str, Any] | None = None,
+        policy_kwargs: dict[str, Any] | None = None,
+        stats_window_size: int = 100,
+        tensorboard_log: str | None = None,
+        verbose: int = 0,
+        seed: int | None = None,
+        device: th.device | str = "cpu",
+        _init_setup_model: bool = True,
+    ):
+        if isinstance(policy, str):
+            if policy not in self.policy_aliases:
+                raise ValueError(
+                    f"policy must be one of {sorted(self.policy_aliases)} or a policy class, got {policy!r}"
+                )
+            # Resolved here: SB3 would otherwise ask for "MultiInputPolicy" on Dict observations.
+            policy = self.policy_aliases[policy]  # type: ignore[assignment]
+        super().__init__(
+            policy=policy,
+            env=env,
+            learning_rate=learning_rate,
+            buffer_size=buffer_size,
+            learning_starts=learning_starts,
+            gamma=gamma,
+            train_freq=train_freq,
+            gradient_steps=gradient_steps,
+            replay_buffer_class=replay_buffer_class,
+            replay_buffer_kwargs=replay_buffer_kwargs,
+            policy_kwargs=policy_kwargs,
+            stats_window_size=stats_window_size,
+            tensorboard_log=tensorboard_log,
+            verbose=verbose,
+            device=device,
+            seed=seed,
+            sde_support=False,
+            support_multi_env=False,
+        )
+        self.reward_head = reward_head
+        self.kappa = kappa
+        self.sigma = sigma
+        self.similarity = similarity
+        self.update_ratio = update_ratio
+        self.fqi_max_iterations = fqi_max_iterations
+        self.fqi_tol = fqi_tol
+        self.rbf_per_dim = rbf_per_dim
+        self.rbf_sigma = rbf_sigma
+        self.reward_fn = reward_fn
+        self.reward_head_kwargs = dict(reward_head_kwargs or {})
+        self.reward_heads = {}
+        self.policy_updates = {}
+        # Refits waiting for the next training round, and each task's uncertainty as of its last refit.
+        self._due_tasks: set[int] = set()
+        self._uncertainty_at_refit: dict[int, UncertaintyFn] = {}
+        self._check_arguments()
+        if _init_setup_model:
+            self._setup_model()
+
+    def _check_arguments(self) -> None:
+        """Reject bad settings at construction, naming the argument."""
+        if self.action_space is not None and not isinstance(self.action_space, spaces.Discrete):
+            raise ValueError(f"TRLSD needs a Discrete action space (env), got {self.action_space}")
+        if self.observation_space is not None:
+            state_space_of(self.observation_space)
+        if not isinstance(self.reward_head, RewardHead) and self.reward_head not in REWARD_HEAD_NAMES:
+            raise ValueError(
+                f"reward_head must be one of {sorted(REWARD_HEAD_NAMES)} or a RewardHead instance, "
+                f"got {self.reward_head!r}"
+            )
+        if self.kappa < 0:
+            raise ValueError(f"kappa must be >= 0 (0 is the non-optimistic method), got {self.kappa}")
+        if self.sigma <= 0:
+            raise ValueError(f"sigma must be > 0, got {self.sigma}")
+        if self.similarity not in ("state", "features"):
+            raise ValueError(f"similarity must be 'state' or 'features', got {self.similarity!r}")
+        if self.update_ratio <= 1:
+            raise ValueError(
+                f"update_ratio must be > 1 (the CI must shrink to trigger a refit), got {self.update_ratio}"
+            )
+        if not 0 < self.gamma < 1:
+            raise ValueError(f"gamma must be in (0, 1), got {self.gamma}")
+        if self.fqi_max_iterations is not None and self.fqi_max_iterations < 1:
+            raise ValueError(f"fqi_max_iterations must be >= 1 or None, got {self.fqi_max_iterations}")
+
+    def _setup_model(self) -> None:
+        if self.replay_buffer_class is None:
+            self.replay_buffer_class = SharedDynamicsReplayBuffer
+        if not issubclass(self.replay_buffer_class, SharedDynamicsReplayBuffer):
+            raise ValueError(
+                "replay_buffer_class must be a SharedDynamicsReplayBuffer subclass, "
+                f"got {self.replay_buffer_class}"
+            )
+        if issubclass(self.policy_class, LinearPolicy):
+            self.policy_kwargs.setdefault("rbf_per_dim", self.rbf_per_dim)
+            self.policy_kwargs.setdefault("rbf_sigma", self.rbf_sigma)
+        super()._setup_model()
+        self.features = RBFGrid.for_box(
+            state_space_of(self.observation_space), self.rbf_per_dim, self.rbf_sigma
+        )
+
+    def _excluded_save_params(self) -> list[str]:
+        # Rebuilt by _setup_model.
+        return [*super()._excluded_save_params(), "features"]
+
+    def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
+        return ["policy"], []
+
+    # ------------------------------------------------------------- reward heads
+    def reward_head_of(self, task: int) -> RewardHead:
+        """The reward head of ``task``, created (with no samples) the first time it is asked for."""
+        task = int(task)
+        if task not in self.reward_heads:
+            self.reward_heads[task] = self._new_reward_head(task)
+        return self.reward_heads[task]
+
+    def _new_reward_head(self, task: int) -> RewardHead:
+        if isinstance(self.reward_head, RewardHead):
+            return copy.deepcopy(self.reward_head)
+        reward_fn = None
+        if self.reward_head == "known":
+            base_fn = self.reward_fn
+            if base_fn is None:
+                assert self.env is not None, (
+                    "the 'known' reward head needs reward_fn or an env with expected_reward"
+                )
+                base_fn = self.env.get_attr("expected_reward", indices=0)[0]
+            reward_fn = partial(base_fn, task=task)
+        return make_reward_head(
+            self.reward_head,
+            features=self.features,
+            kappa=self.kappa,
+            sigma=self.sigma,
+            similarity=self.similarity,
+            reward_fn=reward_fn,
+            **self.reward_head_kwargs,
+        )
+
+    # --------------------------------------------------------------- transitions
+    def load_transitions(self, data: Transitions | str | os.PathLike, keep_rewards: bool = False) -> None:
+        """
+        Add transitions collected elsewhere to the shared buffer (the paper's source set Xi).
+
+        :param data: transitions (see ``collect_transitions``) or the path of a ``.npz`` saved from them
+        :param keep_rewards: also fit each task's reward head on the rewards of its transitions; False
+            (the paper's setting) uses them for the dynamics only
+        """
+        transitions = data if isinstance(data, Transitions) else Transitions.load(data)
+        n_tasks = self.policy.n_tasks
+        if transitions.tasks.min(initial=0) < 0 or transitions.tasks.max(initial=0) >= n_tasks:
+            raise ValueError(f"transitions have tasks outside the env's 0..{n_tasks - 1}")
+        self.replay_buffer.add_transitions(transitions, keep_rewards=keep_rewards)
+        if keep_rewards:
+            for task in np.unique(transitions.tasks):
+                rows = transitions.tasks == task
+                self.reward_head_of(task).update(transitions.states[rows], transitions.rewards[rows])
+        # New dynamics data: every fitted task is refitted at the next training round.
+        self._due_tasks.update(int(task) for task in np.flatnonzero(self.policy.fitted.cpu().numpy()))
+
+    # ------------------------------------------------------------ online loop
+    def _sample_action(
+        self, learning_starts: int, action_noise: ActionNoise | None = None, n_envs: int = 1
+    ) -> tuple[np.ndarray, np.ndarray]:
+        # A task's Q is fitted at its first step, before the policy acts on it.
+        if self.num_timesteps >= learning_starts and self._last_obs is not None:
+            tasks = self._last_obs["task"] if isinstance(self._last_obs, dict) else [0]
+            for task in np.unique(tasks):
+                if not self.policy.fitted[task]:
+                    self.update_policy(int(task))
+        return super()._sample_action(learning_starts, action_noise, n_envs)
+
+    def _on_step(self) -> None:
+        """Feed the transition just stored to its task's reward head and check the refit trigger."""
+        buffer = self.replay_buffer
+        row = (buffer.pos - 1) % buffer.buffer_size
+        for state, reward, task in zip(
+            buffer.observations[row], buffer.rewards[row], buffer.tasks[row], strict=True
+        ):
+            state = state.astype(np.float64)[None]
+            head = self.reward_head_of(task)
+            head.update(state, np.array([reward], dtype=np.float64))
+            uncertainty_at_refit = self._uncertainty_at_refit.get(int(task))
+            if uncertainty_at_refit is not None:
+                # Section 3: refit once the CI at an encountered state has been divided by update_ratio.
+                # The ratio is taken on the kappa-free uncertainty, so that kappa = 0 triggers the same way.
+                then, now = uncertainty_at_refit(state)[0], head.uncertainty(state)[0]
+                if then > 0 and then >= self.update_ratio * now:
+                    self._due_tasks.add(int(task))
+            self.logger.record("reward/target_samples", head.n_samples)
+
+    def train(self, gradient_steps: int, batch_size: int) -> None:
+        """Refit the Q-function of every task whose trigger fired since the last round."""
+        for task in sorted(self._due_tasks):
+            self.update_policy(task)
+        self._due_tasks.clear()
+
+    def update_policy(self, task: int) -> None:
+        """
+        Recompute the policy of ``task`` now: relabel the whole shared buffer with the task's reward proxy R~
+        (Algorithm 1, psi) and fit its Q-function on it by Fitted-Q Iteration. ``learn`` calls this at a
+        task's first step and whenever its refit trigger fires; call it directly to learn offline from
+        transitions loaded with ``keep_rewards=True`` (or with the ``"known"`` reward head).
+
+        :param task: the task index
+        """
+        task = int(task)
+        if not 0 <= task < self.policy.n_tasks:
+            raise ValueError(f"task must be in 0..{self.policy.n_tasks - 1}, got {task}")
+        head = self.reward_head_of(task)
+        transitions = self.replay_buffer.relabelled(task, head)
+        stats = self.policy.fit(task, transitions, self.gamma, self.fqi_max_iterations, self.fqi_tol)
+        self._uncertainty_at_refit[task] = head.frozen_uncertainty()
+        self.policy_updates[task] = self.policy_updates.get(task, 0) + 1
+        self._n_updates += 1
+        if getattr(self, "_logger", None) is None:
+            return  # called outside learn(): no logger configured yet
+        self.logger.record("train/policy_updates", sum(self.policy_updates.values()))
+        self.logger.record("train/fqi_iterations", stats.iterations)
+        self.logger.record("train/bellman_residual", stats.bellman_residual)
+        if len(transitions):
+            # The optimism actually applied: mean of R~ - R^ over the relabelled set.
+            optimism = transitions.rewards - head.estimate(transitions.states)
+            self.logger.record("reward/ci_mean", float(np.mean(optimism)))
+
+    def learn(
+        self: SelfTRLSD,
+        total_timesteps: int,
+        callback=None,
+        log_interval: int = 4,
+        tb_log_name: str = "TRLSD",
+        reset_num_timesteps: bool = True,
+        progress_bar: bool = False,
+    ) -> SelfTRLSD:
+        return super().learn(
+            total_timesteps=total_timesteps,
+            callback=callback,
+            log_interval=log_interval,
+            tb_log_name=tb_log_name,
+            reset_num_timesteps=reset_num_timesteps,
+            progress_bar=progress_bar,
+        )

@@ -1,0 +1,70 @@
+"""collect_transitions and the .npz round trip of Transitions."""
+
+import dataclasses
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+from sb3_trlsd import Transitions, collect_transitions
+from tests.conftest import MAZE_ID
+
+
+def test_collected_transitions_chain_within_trajectories(source_transitions):
+    """s'_t is s_{t+1} unless the trajectory was reset; otherwise the set mixes trajectories wrongly."""
+    data = source_transitions
+    same_trajectory = ~data.truncations[:-1]
+    np.testing.assert_array_equal(data.next_states[:-1][same_trajectory], data.states[1:][same_trajectory])
+    assert data.truncations.any() and not data.terminations.any()
+    assert np.all(data.tasks == 12)  # tau_33 is index 5 * 2 + 2
+
+
+def test_truncated_transitions_keep_the_real_next_state(source_transitions):
+    """The next state of a reset transition is where the move led, not the reset state (moves are short)."""
+    data = source_transitions
+    moves = np.linalg.norm(data.next_states - data.states, axis=1)
+    # Displacement is 1 + N(0, 0.5) along and N(0, 0.25) across: beyond 4 is a > 6 sigma event.
+    assert moves[data.truncations].max() < 4.0
+
+
+def test_collect_is_reproducible():
+    """Same seed, same transitions: experiments depend on it."""
+    first = collect_transitions(gym.make(MAZE_ID), n_transitions=200, seed=7)
+    second = collect_transitions(gym.make(MAZE_ID), n_transitions=200, seed=7)
+    for field in dataclasses.fields(Transitions):
+        np.testing.assert_array_equal(getattr(first, field.name), getattr(second, field.name))
+
+
+def test_npz_round_trip(tmp_path, source_transitions):
+    """Saving then loading gives back every array unchanged."""
+    path = tmp_path / "source.npz"
+    source_transitions.save(path)
+    loaded = Transitions.load(path)
+    for field in dataclasses.fields(Transitions):
+        np.testing.assert_array_equal(getattr(loaded, field.name), getattr(source_transitions, field.name))
+
+
+def test_loading_a_file_that_is_not_transitions_fails_clearly(tmp_path, source_transitions):
+    """A .npz lacking arrays, or with arrays of inconsistent shapes or NaN rewards, is refused by name."""
+    path = tmp_path / "other.npz"
+    np.savez(path, states=np.zeros((3, 2)))
+    with pytest.raises(ValueError, match="lacks the arrays"):
+        Transitions.load(path)
+    arrays = {f.name: getattr(source_transitions, f.name) for f in dataclasses.fields(Transitions)}
+    np.savez(path, **{**arrays, "actions": arrays["actions"][:-1]})
+    with pytest.raises(ValueError, match="rows"):
+        Transitions.load(path)
+    np.savez(path, **{**arrays, "rewards": np.full(len(source_transitions), np.nan)})
+    with pytest.raises(ValueError, match="rewards"):
+        Transitions.load(path)
+    np.savez(path, **{**arrays, "states": arrays["states"][:, :1]})
+    with pytest.raises(ValueError, match="states"):
+        Transitions.load(path)
+
+
+def test_collect_rejects_bad_arguments():
+    """A non-positive size or a continuous action space is refused before anything runs."""
+    with pytest.raises(ValueError, match="n_transitions"):
+        collect_transitions(gym.make(MAZE_ID), n_transitions=0)
+    with pytest.raises(ValueError, match="Discrete"):
+        collect_transitions(gym.make("Pendulum-v1"), n_transitions=10)

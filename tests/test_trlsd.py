@@ -1,0 +1,215 @@
+"""TRLSD as an SB3 algorithm: transfer on the maze, refit trigger, SB3 conventions, errors."""
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from stable_baselines3.common.callbacks import BaseCallback
+from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+from envs.maze import N_TASKS
+from sb3_trlsd import TRLSD, Transitions
+from sb3_trlsd.evaluation import greedy_expected_rewards
+from tests.conftest import MAZE_ID
+
+
+def make_model(source, task=(1, 1), n_steps_seed=0, **kwargs):
+    model = TRLSD("LinearPolicy", gym.make(MAZE_ID, task=task), seed=n_steps_seed, **kwargs)
+    model.load_transitions(source, keep_rewards=False)
+    return model
+
+
+def test_known_reward_gives_a_rational_policy_at_once(paper_source_transitions):
+    """
+    Figure 1's setting: with the reward known, the greedy policy fitted on the paper's 25,000 random
+    transitions heads for the reward cell. Averaged over the 25 tasks and 1,000 steps, the expected reward
+    must reach 0.6 (a random policy gets 1/25 = 0.04; a reference implementation 0.66).
+    """
+    model = TRLSD("LinearPolicy", gym.make(MAZE_ID, tasks="all"), reward_head="known", seed=0)
+    model.load_transitions(paper_source_transitions)
+    for task in range(N_TASKS):
+        model.update_policy(task)
+    rewards = greedy_expected_rewards(
+        model.policy.q_values, np.arange(N_TASKS), n_steps=1_000, rng=np.random.default_rng(0)
+    )
+    assert rewards.mean() >= 0.6
+
+
+def test_learn_relabels_fits_and_logs_to_tensorboard(source_transitions, tmp_path):
+    """learn() with the optimistic ridge head refits the policy and writes the documented TensorBoard tags."""
+    model = make_model(source_transitions, tensorboard_log=str(tmp_path), kappa=0.1, sigma=0.2)
+    model.learn(total_timesteps=300, log_interval=1)
+    assert model.policy_updates[0] >= 2
+    assert model.reward_heads[0].n_samples == 300
+    (event_file,) = tmp_path.glob("TRLSD_1/events.out.tfevents.*")
+    tags = set(EventAccumulator(str(event_file)).Reload().Tags()["scalars"])
+    expected = {
+        "train/policy_updates",
+        "train/fqi_iterations",
+        "train/bellman_residual",
+        "reward/ci_mean",
+        "reward/target_samples",
+        "rollout/ep_rew_mean",
+    }
+    assert expected <= tags
+
+
+def test_smaller_update_ratio_triggers_more_policy_updates(source_transitions):
+    """update_ratio is the refit trigger of section 3: a threshold closer to 1 must fire more often."""
+    counts = {}
+    for ratio in (2.0, 1.2):
+        model = make_model(source_transitions, update_ratio=ratio)
+        model.learn(total_timesteps=300)
+        counts[ratio] = model.policy_updates[0]
+    assert counts[1.2] > counts[2.0]
+
+
+def test_non_optimistic_head_still_triggers_refits(source_transitions):
+    """kappa=0 has a zero CI, yet its refits follow the same kappa-free trigger as the optimistic head."""
+    model = make_model(source_transitions, kappa=0.0)
+    model.learn(total_timesteps=300)
+    assert model.policy_updates[0] >= 2
+
+
+def test_seeded_runs_are_reproducible(source_transitions):
+    """Same seed, same online trajectory and same Q parameters."""
+    runs = []
+    for _ in range(2):
+        model = make_model(source_transitions, n_steps_seed=3)
+        model.learn(total_timesteps=150)
+        runs.append((model.replay_buffer.transitions(), model.policy.theta.clone()))
+    np.testing.assert_array_equal(runs[0][0].actions, runs[1][0].actions)
+    np.testing.assert_array_equal(runs[0][1].numpy(), runs[1][1].numpy())
+
+
+def test_callbacks_and_progress_bar_work(source_transitions):
+    """Callbacks are called once per step and the progress bar does not break learn()."""
+
+    class CountSteps(BaseCallback):
+        def __init__(self):
+            super().__init__()
+            self.calls = 0
+
+        def _on_step(self) -> bool:
+            self.calls += 1
+            return True
+
+    callback = CountSteps()
+    make_model(source_transitions).learn(total_timesteps=50, callback=callback, progress_bar=True)
+    assert callback.calls == 50
+
+
+def test_predict_on_single_and_batched_observations(source_transitions):
+    """predict follows SB3: a single observation gives a scalar action, a batch one action per row."""
+    model = make_model(source_transitions)
+    model.learn(total_timesteps=20)
+    single, _ = model.predict(
+        {"state": np.array([0.5, 0.5], dtype=np.float32), "task": 0}, deterministic=True
+    )
+    batch, _ = model.predict(
+        {
+            "state": np.array([[0.5, 0.5], [4.5, 4.5], [2.5, 0.5]], dtype=np.float32),
+            "task": np.array([0, 0, 0]),
+        }
+    )
+    assert np.ndim(single) == 0 and batch.shape == (3,)
+    assert batch[0] == single
+
+
+def test_save_load_round_trip_predicts_the_same_and_keeps_learning(source_transitions, tmp_path):
+    """A loaded model has the same Q and reward heads, the same actions, and can go on learning."""
+    model = make_model(source_transitions)
+    model.learn(total_timesteps=200)
+    model.save(tmp_path / "model")
+    model.save_replay_buffer(tmp_path / "buffer")
+    env = gym.make(MAZE_ID, task=(1, 1))
+    loaded = TRLSD.load(tmp_path / "model", env=env)
+    loaded.load_replay_buffer(tmp_path / "buffer")
+    states = np.random.default_rng(0).uniform(0, 5, size=(500, 2))
+    np.testing.assert_array_equal(loaded.policy.q_values(states, 0), model.policy.q_values(states, 0))
+    np.testing.assert_allclose(
+        loaded.reward_heads[0].optimistic(states), model.reward_heads[0].optimistic(states)
+    )
+    assert loaded.replay_buffer.size() == model.replay_buffer.size()
+    loaded.learn(total_timesteps=100, reset_num_timesteps=False)
+    assert loaded.reward_heads[0].n_samples == 300
+
+
+def test_mlp_policy_learns(source_transitions):
+    """The MLP policy goes through the same loop: fitted at the first step, refitted on triggers."""
+    mlp = TRLSD("MlpPolicy", gym.make(MAZE_ID, task=(1, 1)), fqi_max_iterations=3, seed=0)
+    mlp.load_transitions(source_transitions)
+    mlp.learn(total_timesteps=60)
+    assert mlp.policy_updates[0] >= 1 and bool(mlp.policy.fitted[0])
+    assert np.isfinite(mlp.policy.q_values(np.ones((4, 2)), 0)).all()
+
+
+def test_multi_task_env_triggers_each_task_on_its_own():
+    """With tasks in turns and no source data, every task seen gets its own head and its own refits."""
+    env = gym.make(
+        MAZE_ID, tasks="corners", task_schedule="round_robin", termination_prob=0.0, max_episode_steps=50
+    )
+    model = TRLSD("LinearPolicy", env, seed=0)
+    model.learn(total_timesteps=400)
+    assert sorted(model.reward_heads) == [0, 4, 20, 24]
+    assert all(model.policy_updates[task] >= 1 for task in (0, 4, 20, 24))
+    assert all(head.n_samples == 100 for head in model.reward_heads.values())
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "argument"),
+    [
+        ({"kappa": -0.1}, "kappa"),
+        ({"sigma": 0.0}, "sigma"),
+        ({"update_ratio": 1.0}, "update_ratio"),
+        ({"reward_head": "gaussian-process"}, "reward_head"),
+        ({"similarity": "cosine"}, "similarity"),
+    ],
+    ids=["negative-kappa", "zero-sigma", "update-ratio-1", "unknown-head", "unknown-similarity"],
+)
+def test_bad_hyperparameters_are_refused_by_name(kwargs, argument):
+    """Each bad setting raises a ValueError naming the argument at construction."""
+    with pytest.raises(ValueError, match=argument):
+        TRLSD("LinearPolicy", gym.make(MAZE_ID), **kwargs)
+
+
+def test_bad_policy_and_spaces_are_refused():
+    """An unknown policy, a continuous action space or an observation without a state Box is refused."""
+    with pytest.raises(ValueError, match="policy must be one of"):
+        TRLSD("CnnPolicy", gym.make(MAZE_ID))
+    with pytest.raises(ValueError, match="Discrete action space"):
+        TRLSD("LinearPolicy", "Pendulum-v1")
+    with pytest.raises(ValueError, match="observation_space"):
+        TRLSD("LinearPolicy", "FrozenLake-v1")
+
+
+def test_transitions_that_do_not_match_the_env_are_refused(source_transitions):
+    """Wrong state dimension, task index, or NaN rewards are refused with a clear error."""
+    model = TRLSD("LinearPolicy", gym.make(MAZE_ID), seed=0)
+    fields = {name: getattr(source_transitions, name) for name in Transitions.__dataclass_fields__}
+    with pytest.raises(ValueError, match="dimension"):
+        model.load_transitions(
+            Transitions(
+                **{
+                    **fields,
+                    "states": np.ones((len(source_transitions), 3)),
+                    "next_states": np.ones((len(source_transitions), 3)),
+                }
+            )
+        )
+    with pytest.raises(ValueError, match="tasks"):
+        model.load_transitions(Transitions(**{**fields, "tasks": np.full(len(source_transitions), 30)}))
+    with pytest.raises(ValueError, match="rewards"):
+        Transitions(**{**fields, "rewards": np.full(len(source_transitions), np.nan)})
+
+
+def test_known_head_needs_no_env_method_when_given_a_reward_function(source_transitions):
+    """reward_fn replaces the env's expected_reward for the 'known' head."""
+    calls = []
+
+    def reward_fn(states, task):
+        calls.append(task)
+        return np.zeros(len(states))
+
+    model = make_model(source_transitions, reward_head="known", reward_fn=reward_fn)
+    model.update_policy(0)
+    assert calls and set(calls) == {0}
