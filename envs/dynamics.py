@@ -6,10 +6,10 @@ first meets a wall and is pushed back from that wall by U(0.1, 0.5) along the wa
 side it came from; this repeats, with the move from the start to the pushed-back point, until the move
 crosses no wall.
 
-What "meets a wall" means: the segment from p to q meets the wall where the parameter ``t`` of
-``p + t (q - p)`` lies in ``(0, 1]`` on the wall's line and the point lies on the wall's (closed)
-segment. So a move *ending* exactly on a wall hits it, while a state lying exactly on a wall line and
-moving away does not, and a move along a wall's line (parallel) never hits it.
+What "meets a wall" means: the segment from p to q meets the wall when p and q lie strictly on opposite
+sides of the wall's line, or q lies on it and p does not, and the crossing point lies on the wall's
+(closed) segment. So a move *ending* exactly on a wall hits it, while a state lying exactly on a wall
+line does not hit that wall whichever way it moves, and a move along a wall's line never hits it.
 """
 
 from __future__ import annotations
@@ -90,11 +90,14 @@ def first_wall_hits(starts: np.ndarray, ends: np.ndarray, walls: np.ndarray) -> 
             continue
         line = walls[on_axis, axis]  # (k,)
         span_low, span_high = walls[on_axis, other], walls[on_axis, 2 + other]
-        step = moves[:, axis : axis + 1]  # (n, 1)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t = (line[None, :] - starts[:, axis : axis + 1]) / step  # (n, k)
+        before = starts[:, axis : axis + 1] - line[None, :]  # signed distances to the lines, (n, k)
+        after = ends[:, axis : axis + 1] - line[None, :]
+        # Decided by signs, not by t > 0: t underflows to 0 for a start a denormal away from a wall.
+        meets = ((np.sign(before) * np.sign(after) < 0) | ((after == 0) & (before != 0))) & (before != after)
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            t = np.clip(before / (before - after), 0.0, 1.0)  # (n, k)
         crossing = starts[:, other : other + 1] + t * moves[:, other : other + 1]
-        valid = (step != 0) & (t > 0) & (t <= 1) & (crossing >= span_low) & (crossing <= span_high)
+        valid = meets & (crossing >= span_low) & (crossing <= span_high)
         hit_t[:, on_axis] = np.where(valid, t, np.inf)
     first = hit_t.argmin(axis=1)
     return hit_t[np.arange(len(starts)), first], first
