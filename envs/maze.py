@@ -185,6 +185,68 @@ class SharedDynamicsMaze(gym.Env):
         """Noise-free E[R_task(s)] for an ``(n, 2)`` array of states (default: the current task)."""
         return expected_reward(states, self.task if task is None else task)
 
+    def random_transitions(
+        self, n_transitions: int, seed: int | None = None, max_episode_steps: int | None = None
+    ) -> dict[str, np.ndarray]:
+        """
+        ``n_transitions`` transitions of a uniformly random policy, all trajectories stepped at once.
+
+        The same process as stepping the env with random actions: trajectory lengths are iid (a reset after
+        each step with probability ``termination_prob``, capped at ``max_episode_steps``), each trajectory
+        starts uniformly in the square with the task its schedule gives, and the last one is cut at
+        ``n_transitions``. ``sb3_trlsd.collect_transitions`` uses it when an env provides it.
+
+        :param n_transitions: how many transitions
+        :param seed: seed of the sampler
+        :param max_episode_steps: time limit of the trajectories, if any
+        :return: arrays ``states``, ``actions``, ``next_states``, ``rewards``, ``tasks``, ``truncations``,
+            ``terminations``, one row per transition, trajectory after trajectory
+        """
+        rng = np.random.default_rng(seed)
+        cap = n_transitions if max_episode_steps is None else min(max_episode_steps, n_transitions)
+        lengths: list[int] = []
+        while sum(lengths) < n_transitions:
+            drawn = rng.geometric(self.termination_prob, size=64) if self.termination_prob > 0 else [cap] * 64
+            lengths.extend(int(min(length, cap)) for length in drawn)
+        ends = np.cumsum(lengths)
+        n_trajectories = int(np.searchsorted(ends, n_transitions) + 1)
+        full_lengths = np.array(lengths[:n_trajectories])
+        cut_lengths = full_lengths.copy()
+        cut_lengths[-1] -= int(ends[n_trajectories - 1]) - n_transitions
+        offsets = np.concatenate([[0], np.cumsum(cut_lengths)[:-1]])
+        if self.task_schedule == "random":
+            tasks = np.asarray(self.tasks)[rng.integers(len(self.tasks), size=n_trajectories)]
+        elif self.task_schedule == "round_robin":
+            tasks = np.asarray(self.tasks)[np.arange(n_trajectories) % len(self.tasks)]
+        else:
+            tasks = np.full(n_trajectories, self.tasks[0])
+        out = {
+            "states": np.empty((n_transitions, 2)),
+            "actions": rng.integers(4, size=n_transitions),
+            "next_states": np.empty((n_transitions, 2)),
+            "tasks": np.repeat(tasks, cut_lengths),
+        }
+        states = rng.uniform(0.0, MAZE_SIZE, size=(n_trajectories, 2))
+        active = np.arange(n_trajectories)  # trajectories still running, and their current states
+        for step in range(int(cut_lengths.max())):
+            running = cut_lengths[active] > step
+            active, states = active[running], states[running]
+            rows = offsets[active] + step
+            out["states"][rows] = states
+            states = maze_step(
+                states, out["actions"][rows], rng, self.walls, self.along_noise_std, self.across_noise_std
+            )
+            out["next_states"][rows] = states
+        cells = cell_of(out["states"])
+        target = MAZE_SIZE * (cells[:, 0] - 1) + (cells[:, 1] - 1) == out["tasks"]
+        out["rewards"] = target + self.reward_noise_std * rng.normal(size=n_transitions)
+        last = offsets + cut_lengths - 1
+        out["truncations"] = np.zeros(n_transitions, dtype=bool)
+        # A trajectory cut at n_transitions was not reset.
+        out["truncations"][last[cut_lengths == full_lengths]] = True
+        out["terminations"] = np.zeros(n_transitions, dtype=bool)
+        return out
+
     def _observation(self) -> dict[str, Any]:
         return {"state": self.state.astype(np.float32), "task": self.task}
 

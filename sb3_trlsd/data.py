@@ -127,7 +127,9 @@ def collect_transitions(
 
     This is how the paper builds its source set Xi (section 4: 25,000 transitions, 2% termination,
     uniform reset); the rewards of the env's task are kept, ``TRLSD.load_transitions`` decides whether
-    to use them.
+    to use them. An env whose unwrapped object has a ``random_transitions(n, seed, max_episode_steps)``
+    method (the maze) samples them itself, all trajectories at once; any other env is stepped one
+    transition at a time.
 
     :param env: a Gymnasium env with a Discrete action space and a Box (or ``{"state", "task"}`` Dict)
         observation space
@@ -140,6 +142,11 @@ def collect_transitions(
         raise ValueError(f"n_transitions must be a positive integer, got {n_transitions}")
     if not isinstance(env.action_space, spaces.Discrete):
         raise ValueError(f"collect_transitions needs a Discrete action space, got {env.action_space}")
+    sampler = getattr(env.unwrapped, "random_transitions", None)
+    if sampler is not None:
+        # The env steps all its random trajectories at once (e.g. the maze): same process, much faster.
+        max_steps = env.spec.max_episode_steps if env.spec is not None else None
+        return Transitions(**sampler(n_transitions, seed=seed, max_episode_steps=max_steps))
     env.action_space.seed(seed)
     obs, _ = env.reset(seed=seed)
     state, task = split_observation(obs)
