@@ -103,7 +103,18 @@ class RBFGrid:
         return len(self.centres)
 
     def __call__(self, states: np.ndarray) -> np.ndarray:
-        """Phi(s) for states (n, d) -> (n, n_features)."""
-        return rbf_features(
-            np.asarray(states, dtype=np.float64).reshape(-1, len(self.low)), self.centres, self.sigma
-        )
+        """
+        Phi(s) for states (n, d) -> (n, n_features), equal to ``rbf_features(states, centres, sigma)``.
+
+        On a grid the Gaussian factorises over the dimensions, so it takes n_per_dim exponentials per
+        dimension instead of one per centre.
+        """
+        states = np.asarray(states, dtype=np.float64).reshape(-1, len(self.low))
+        phi = np.ones((len(states), 1))
+        for dim, (low, high) in enumerate(zip(self.low, self.high, strict=True)):
+            centres = low + (np.arange(self.n_per_dim) + 0.5) * (high - low) / self.n_per_dim
+            # (n, n_per_dim)
+            factor = np.exp(-((states[:, dim : dim + 1] - centres) ** 2) / (2.0 * self.sigma**2))
+            # Outer product, the first dimension varying slowest as in grid_centres.
+            phi = (phi[:, :, None] * factor[:, None, :]).reshape(len(states), phi.shape[1] * self.n_per_dim)
+        return phi

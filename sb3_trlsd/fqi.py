@@ -68,7 +68,8 @@ def bellman_targets(
     Fitted-Q Iteration is not a contraction and can diverge; no true Q-value lies outside
     ``return_bounds(rewards, gamma)``, so clipping to them leaves a well-behaved fit unchanged.
     """
-    bootstrap = np.clip(next_q.max(axis=1), *bounds)
+    # Reduced along the first axis of next_q.T: fast when next_q is the transpose of an (n_actions, n) array.
+    bootstrap = np.clip(np.max(next_q.T, axis=0), *bounds)
     return rewards + gamma * np.where(terminated, 0.0, bootstrap)
 
 
@@ -91,8 +92,9 @@ def fit_linear_fqi(
     per-action block form, since Phi(s, a) of eq. 3 is block-diagonal in the actions).
 
     The per-action Gram matrices are factored once (Cholesky): only the targets y change between
-    iterations. Iterations stop when max |theta_new - theta| <= tol * (1 + max |theta|), a tolerance
-    relative to the scale of Q (optimistic rewards make it large), or after ``max_iterations``.
+    iterations, so an iteration is a matrix product for the targets and k x k solves. Iterations stop
+    when max |theta_new - theta| <= tol * (1 + max |theta|), a tolerance relative to the scale of Q
+    (optimistic rewards make it large), or after ``max_iterations``.
 
     :param phi: Phi(s), (n, k)
     :param actions: a, (n,)
@@ -110,25 +112,37 @@ def fit_linear_fqi(
     """
     n, k = phi.shape
     actions = np.asarray(actions, dtype=np.int64)
-    terminated = np.asarray(terminated, dtype=bool)
     theta = np.zeros((n_actions, k)) if theta0 is None else np.array(theta0, dtype=np.float64, copy=True)
-    rows = [np.flatnonzero(actions == a) for a in range(n_actions)]
-    # Factor X_a^T X_a + ridge I once per action: (k, k) each.
-    factors = [cho_factor(phi[r].T @ phi[r] + ridge * np.eye(k)) if len(r) else None for r in rows]
-    bounds = return_bounds(rewards, gamma)
-    targets = bellman_targets(rewards, linear_q_values(next_phi, theta), terminated, gamma, bounds)
+    # Rows sorted by action, so that each action's block is a contiguous slice.
+    order = np.argsort(actions, kind="stable")
+    starts = np.searchsorted(actions[order], np.arange(n_actions + 1))
+    phi_sorted = phi[order]
+    next_phi_t = np.ascontiguousarray(next_phi[order].T)  # (k, n)
+    rewards_sorted = np.asarray(rewards, dtype=np.float64)[order]
+    terminated_sorted = np.asarray(terminated, dtype=bool)[order]
+    blocks = [phi_sorted[starts[a] : starts[a + 1]] for a in range(n_actions)]  # X_a, (n_a, k)
+    # Cholesky factors of X_a^T X_a + ridge I, or None for an action never taken.
+    factors = [cho_factor(block.T @ block + ridge * np.eye(k)) if len(block) else None for block in blocks]
+    bounds = return_bounds(rewards_sorted, gamma)
+
+    def targets_of(theta: np.ndarray) -> np.ndarray:
+        next_q = (theta @ next_phi_t).T  # (n, n_actions)
+        return bellman_targets(rewards_sorted, next_q, terminated_sorted, gamma, bounds)
+
+    targets = targets_of(theta)
     iterations = 0
     for iterations in range(1, max_iterations + 1):  # noqa: B007 (the count is returned)
         new_theta = theta.copy()
-        for a, (r, factor) in enumerate(zip(rows, factors, strict=True)):
+        for a, (block, factor) in enumerate(zip(blocks, factors, strict=True)):
             if factor is not None:
-                new_theta[a] = cho_solve(factor, phi[r].T @ targets[r])  # eq. 4 for the block of action a
+                # eq. 4 for the block of action a
+                new_theta[a] = cho_solve(factor, block.T @ targets[starts[a] : starts[a + 1]])
         change = np.abs(new_theta - theta).max()
         theta = new_theta
-        targets = bellman_targets(rewards, linear_q_values(next_phi, theta), terminated, gamma, bounds)
+        targets = targets_of(theta)
         if change <= tol * (1.0 + np.abs(theta).max()):
             break
-    fitted = linear_q_values(phi, theta)[np.arange(n), actions]
+    fitted = np.einsum("nk,nk->n", phi_sorted, theta[actions[order]])  # Q(s, a), (n,)
     residual = float(np.sqrt(np.mean((targets - fitted) ** 2))) if n else 0.0
     return LinearFQIResult(theta=theta, iterations=iterations, bellman_residual=residual)
 

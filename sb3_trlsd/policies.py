@@ -18,6 +18,7 @@ from gymnasium import spaces
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
 
+from sb3_trlsd.arrays import PrefixFeatureCache
 from sb3_trlsd.buffers import state_space_of
 from sb3_trlsd.data import Transitions
 from sb3_trlsd.features import RBFGrid
@@ -157,6 +158,9 @@ class LinearPolicy(TaskQPolicy):
         self.rbf_sigma = rbf_sigma
         self.fqi_ridge = fqi_ridge
         self.features = RBFGrid.for_box(self.state_space, n_per_dim=rbf_per_dim, sigma=rbf_sigma)
+        # The relabelled set only grows between refits: the features of its old rows are kept.
+        self._start_features = PrefixFeatureCache(self.features)
+        self._next_features = PrefixFeatureCache(self.features)
         self.register_buffer(
             "theta", th.zeros(self.n_tasks, self.n_actions, self.features.n_features, dtype=th.float64)
         )
@@ -178,10 +182,10 @@ class LinearPolicy(TaskQPolicy):
         self, task: int, transitions: Transitions, gamma: float, max_iterations: int, tol: float
     ) -> FitStats:
         result = fit_linear_fqi(
-            self.features(transitions.states),
+            self._start_features(transitions.states),
             transitions.actions,
             transitions.rewards,
-            self.features(transitions.next_states),
+            self._next_features(transitions.next_states),
             transitions.terminations,
             n_actions=self.n_actions,
             gamma=gamma,

@@ -32,6 +32,7 @@ from functools import partial
 
 import numpy as np
 
+from sb3_trlsd.arrays import GrowableArray
 from sb3_trlsd.features import gaussian_similarity
 
 __all__ = [
@@ -62,30 +63,6 @@ def log_sample_count(n_samples: int) -> float:
 def confidence_width(log_count: float, weights: np.ndarray, w_floor: float) -> np.ndarray:
     """sqrt(log|Xi_tau| / W(s)): eq. 9 (W a neighbouring weight) or eq. 10 (W a count) without kappa."""
     return np.sqrt(log_count / np.maximum(weights, w_floor))
-
-
-class GrowableArray:
-    """Rows appended in amortised O(1) (capacity doubling) with a view on the rows stored so far."""
-
-    def __init__(self, width: int):
-        self._data = np.zeros((16, width))
-        self._size = 0
-
-    def __len__(self) -> int:
-        return self._size
-
-    def append(self, rows: np.ndarray) -> None:
-        rows = np.asarray(rows, dtype=np.float64).reshape(-1, self._data.shape[1])
-        needed = self._size + len(rows)
-        if needed > len(self._data):
-            grown = np.zeros((max(needed, 2 * len(self._data)), self._data.shape[1]))
-            grown[: self._size] = self._data[: self._size]
-            self._data = grown
-        self._data[self._size : needed] = rows
-        self._size = needed
-
-    def view(self, start: int = 0, stop: int | None = None) -> np.ndarray:
-        return self._data[start : self._size if stop is None else stop]
 
 
 class RewardTracker:
