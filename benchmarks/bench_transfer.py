@@ -2,6 +2,7 @@
 
 The setting of the paper's Figure 5 (section 4): 25,000 random source transitions with their rewards
 discarded, then 1,000 online transitions on a target task, run ``--runs`` times over the 25 tasks in turn.
+"No transfer" is the same algorithm without the source transitions, with and without optimism.
 Prints, per method, the mean expected reward E[R_tau(s_t)] of the visited states over all 1,000
 transitions and over the last 500, with standard errors, the mean number of policy updates, and the
 seconds per run. Usage::
@@ -25,7 +26,8 @@ MAZE_ID = "TRLSD/SharedDynamicsMaze-v0"
 METHODS = {
     "optimistic (ridge, kappa=0.1)": {"transfer": True, "kappa": 0.1},
     "non-optimistic (kappa=0)": {"transfer": True, "kappa": 0.0},
-    "no transfer (kappa=0.1)": {"transfer": False, "kappa": 0.1},
+    "no transfer, optimistic (kappa=0.1)": {"transfer": False, "kappa": 0.1},
+    "no transfer, non-optimistic (kappa=0)": {"transfer": False, "kappa": 0.0},
 }
 
 
