@@ -2,7 +2,8 @@
 
 The setting of the paper's Figure 5 (section 4): 25,000 random source transitions with their rewards
 discarded, then 1,000 online transitions on a target task, run ``--runs`` times over the 25 tasks in turn.
-"No transfer" is the same algorithm without the source transitions, with and without optimism.
+"Known reward" is Figure 1's setting (CI = 0, the policy fitted once); "no transfer" is the same
+algorithm without the source transitions, with and without optimism.
 Prints, per method, the mean expected reward E[R_tau(s_t)] of the visited states over all 1,000
 transitions and over the last 500, with standard errors, the mean number of policy updates, and the
 seconds per run. Usage::
@@ -24,6 +25,7 @@ from sb3_trlsd import TRLSD, collect_transitions
 
 MAZE_ID = "TRLSD/SharedDynamicsMaze-v0"
 METHODS = {
+    "known reward": {"transfer": True, "kappa": 0.0, "reward_head": "known"},
     "optimistic (ridge, kappa=0.1)": {"transfer": True, "kappa": 0.1},
     "non-optimistic (kappa=0)": {"transfer": True, "kappa": 0.0},
     "no transfer, optimistic (kappa=0.1)": {"transfer": False, "kappa": 0.1},
@@ -36,7 +38,14 @@ def run_once(method: str, run: int, n_source: int, n_online: int) -> tuple[np.nd
     start = time.perf_counter()
     settings = METHODS[method]
     task = run % N_TASKS
-    model = TRLSD("LinearPolicy", gym.make(MAZE_ID, task=task), kappa=settings["kappa"], sigma=0.2, seed=run)
+    model = TRLSD(
+        "LinearPolicy",
+        gym.make(MAZE_ID, task=task),
+        reward_head=settings.get("reward_head", "ridge"),
+        kappa=settings["kappa"],
+        sigma=0.2,
+        seed=run,
+    )
     if settings["transfer"]:
         source = collect_transitions(gym.make(MAZE_ID, task=(run * 7) % N_TASKS), n_source, seed=10_000 + run)
         model.load_transitions(source, keep_rewards=False)
@@ -58,13 +67,16 @@ def main() -> None:
     parser.add_argument("--workers", type=int, default=2, help="processes")
     parser.add_argument("--source", type=int, default=25_000, help="random source transitions")
     parser.add_argument("--online", type=int, default=1_000, help="online transitions on the target task")
+    parser.add_argument(
+        "--methods", nargs="+", choices=list(METHODS), default=list(METHODS), help="methods to run"
+    )
     args = parser.parse_args()
 
     print(f"{args.runs} runs per method, {args.source} source and {args.online} online transitions\n")
     print("| method | mean reward [0, 1000) | mean reward [500, 1000) | policy updates | s / run |")
     print("|---|---|---|---|---|")
     with ProcessPoolExecutor(args.workers) as pool:
-        for method in METHODS:
+        for method in args.methods:
             jobs = [pool.submit(run_once, method, run, args.source, args.online) for run in range(args.runs)]
             results = [job.result() for job in jobs]
             rewards = np.stack([r[0] for r in results])

@@ -68,3 +68,12 @@ def test_collect_rejects_bad_arguments():
         collect_transitions(gym.make(MAZE_ID), n_transitions=0)
     with pytest.raises(ValueError, match="Discrete"):
         collect_transitions(gym.make("Pendulum-v1"), n_transitions=10)
+
+
+def test_envs_without_a_sampler_are_stepped_one_transition_at_a_time():
+    """Any Discrete-action env works: CartPole's transitions chain and its terminations are kept."""
+    data = collect_transitions(gym.make("CartPole-v1"), n_transitions=300, seed=0)
+    assert len(data) == 300 and data.state_dim == 4
+    assert data.terminations.any() and np.all(data.tasks == 0)
+    ended = data.terminations[:-1] | data.truncations[:-1]
+    np.testing.assert_array_equal(data.next_states[:-1][~ended], data.states[1:][~ended])
