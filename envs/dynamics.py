@@ -6,10 +6,14 @@ first meets a wall and is pushed back from that wall by U(0.1, 0.5) along the wa
 side it came from; this repeats, with the move from the start to the pushed-back point, until the move
 crosses no wall.
 
-What "meets a wall" means: the segment from p to q meets the wall when p and q lie strictly on opposite
-sides of the wall's line, or q lies on it and p does not, and the crossing point lies on the wall's
-(closed) segment. So a move *ending* exactly on a wall hits it, while a state lying exactly on a wall
-line does not hit that wall whichever way it moves, and a move along a wall's line never hits it.
+What "meets a wall" (or "crosses" it) means: the segment from p to q meets the wall when p and q lie
+strictly on opposite sides of the wall's line, or q lies on the line and p does not, and the point where
+the segment reaches the line lies on the wall's closed segment (its end points included). So:
+
+- a move *ending* exactly on a wall hits it;
+- a state lying exactly on a wall's line does not hit that wall, whichever way it moves away;
+- a move along a wall's line never hits that wall;
+- a move through a wall's end point hits it, a move passing beyond the end point does not.
 """
 
 from __future__ import annotations
@@ -41,38 +45,61 @@ MAZE_SIZE = 5
 DEFAULT_WALLS = (((3, 0), (3, 3)), ((4, 2), (4, 4)))
 BORDER = (((0, 0), (5, 0)), ((5, 0), (5, 5)), ((0, 5), (5, 5)), ((0, 0), (0, 5)))
 REBOUND_LOW, REBOUND_HIGH = 0.1, 0.5
+# A few rebounds always suffice (each one shortens the move, or turns it back inside the band of width
+# 0.5 along the wall, where no other wall is met); the cap turns a bug into an error, not a hang.
 MAX_REBOUNDS = 64
 
 
-def make_walls(walls: Iterable = DEFAULT_WALLS) -> np.ndarray:
+def _as_segments(walls: Iterable | np.ndarray) -> np.ndarray:
+    """The walls as an ``(m, 4)`` float array, or a ValueError naming ``walls`` for any other shape."""
+    try:
+        segments = np.asarray(walls if isinstance(walls, np.ndarray) else list(walls), dtype=np.float64)
+    except (TypeError, ValueError) as error:
+        raise ValueError(f"walls must be a list of segments ((x0, y0), (x1, y1)), got {walls!r}") from error
+    if segments.size == 0:
+        return np.zeros((0, 4))
+    if segments.shape[1:] not in ((2, 2), (4,)):
+        raise ValueError(
+            "walls must be a list of segments ((x0, y0), (x1, y1)) or an (m, 4) array, "
+            f"got an array of shape {segments.shape}"
+        )
+    return segments.reshape(-1, 4)
+
+
+def make_walls(walls: Iterable | np.ndarray = DEFAULT_WALLS) -> np.ndarray:
     """
     Validate a wall layout and add the outer square.
 
     :param walls: axis-aligned segments ``((x0, y0), (x1, y1))`` with integer ends in [0, 5], or an
-        ``(m, 4)`` array of them; ``()`` for an open grid
-    :return: ``(m + 4, 4)`` array of ``x0, y0, x1, y1`` with ``x0 <= x1`` and ``y0 <= y1``
+        ``(m, 4)`` array of them (the output of this function is accepted too); ``()`` for an open grid
+    :return: ``(k, 4)`` array of distinct segments ``x0, y0, x1, y1`` with ``x0 <= x1`` and ``y0 <= y1``,
+        the four sides of the square included
     :raises ValueError: naming ``walls`` for a segment off the grid, diagonal, or of zero length
     """
-    segments = np.asarray(list(walls) if not isinstance(walls, np.ndarray) else walls, dtype=np.float64)
-    segments = segments.reshape(-1, 4) if segments.size else np.zeros((0, 4))
+    segments = _as_segments(walls)
     for x0, y0, x1, y1 in segments:
         text = f"(({x0:g}, {y0:g}), ({x1:g}, {y1:g}))"
-        if not np.all(np.isfinite((x0, y0, x1, y1))) or np.any(
-            np.round((x0, y0, x1, y1)) != (x0, y0, x1, y1)
-        ):
+        ends = np.array([x0, y0, x1, y1])
+        if not np.all(np.isfinite(ends)) or np.any(np.round(ends) != ends):
             raise ValueError(f"walls must lie on the integer grid (cell boundaries), got {text}")
-        if min(x0, y0, x1, y1) < 0 or max(x0, y0, x1, y1) > MAZE_SIZE:
+        if ends.min() < 0 or ends.max() > MAZE_SIZE:
             raise ValueError(f"walls must lie within [0, {MAZE_SIZE}]^2, got {text}")
         if (x0 == x1) == (y0 == y1):
             raise ValueError(f"walls must be axis-aligned segments of non-zero length, got {text}")
     segments = np.concatenate([np.asarray(BORDER, dtype=np.float64).reshape(-1, 4), segments])
     lows, highs = np.minimum(segments[:, :2], segments[:, 2:]), np.maximum(segments[:, :2], segments[:, 2:])
-    return np.concatenate([lows, highs], axis=1)
+    # Distinct rows, so that passing a layout through twice (env -> renderer) changes nothing.
+    return np.unique(np.concatenate([lows, highs], axis=1), axis=0)
+
+
+def _wall_normal_axes(walls: np.ndarray) -> np.ndarray:
+    """The axis each wall is perpendicular to: 0 for a wall ``x = c``, 1 for a wall ``y = c``, shape (m,)."""
+    return (walls[:, 0] != walls[:, 2]).astype(np.intp)
 
 
 def first_wall_hits(starts: np.ndarray, ends: np.ndarray, walls: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """
-    Where each straight move first meets a wall.
+    Where each straight move first meets a wall, in the sense of the module's docstring.
 
     :param starts: p, shape (n, 2)
     :param ends: q, shape (n, 2)
@@ -80,33 +107,45 @@ def first_wall_hits(starts: np.ndarray, ends: np.ndarray, walls: np.ndarray) -> 
     :return: ``t`` (n,), the fraction of the move at the first hit (``inf`` when none), and the index of
         the wall hit (n,) (meaningless where ``t`` is ``inf``)
     """
-    moves = ends - starts  # (n, 2)
-    hit_t = np.full((len(starts), len(walls)), np.inf)  # (n, m)
-    for axis in (0, 1):
-        # Walls perpendicular to `axis`: constant coordinate `axis`, spanning the other one.
-        other = 1 - axis
-        on_axis = np.flatnonzero(walls[:, axis] == walls[:, 2 + axis])
-        if not len(on_axis):
-            continue
-        line = walls[on_axis, axis]  # (k,)
-        span_low, span_high = walls[on_axis, other], walls[on_axis, 2 + other]
-        before = starts[:, axis : axis + 1] - line[None, :]  # signed distances to the lines, (n, k)
-        after = ends[:, axis : axis + 1] - line[None, :]
-        # Decided by signs, not by t > 0: t underflows to 0 for a start a denormal away from a wall.
-        meets = ((np.sign(before) * np.sign(after) < 0) | ((after == 0) & (before != 0))) & (before != after)
-        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-            t = np.clip(before / (before - after), 0.0, 1.0)  # (n, k)
-        crossing = starts[:, other : other + 1] + t * moves[:, other : other + 1]
-        valid = meets & (crossing >= span_low) & (crossing <= span_high)
-        hit_t[:, on_axis] = np.where(valid, t, np.inf)
+    axis = _wall_normal_axes(walls)  # (m,)
+    other = 1 - axis
+    columns = np.arange(len(walls))
+    line, span_low, span_high = walls[columns, axis], walls[columns, other], walls[columns, 2 + other]
+    before = starts[:, axis] - line  # signed distances of p to each wall's line, (n, m)
+    after = ends[:, axis] - line
+    # Decided by signs, not by t > 0: t underflows to 0 for a start a denormal away from a wall.
+    meets = (np.sign(before) * np.sign(after) < 0) | ((after == 0) & (before != 0))
+    # Where the line is met, |before| <= |before - after| holds after rounding too, so t is in [0, 1].
+    t = np.divide(before, before - after, out=np.zeros_like(before), where=meets)
+    crossing = starts[:, other] + t * (ends[:, other] - starts[:, other])  # (n, m)
+    hit_t = np.where(meets & (crossing >= span_low) & (crossing <= span_high), t, np.inf)
     first = hit_t.argmin(axis=1)
     return hit_t[np.arange(len(starts)), first], first
 
 
 def segment_crosses_walls(starts: np.ndarray, ends: np.ndarray, walls: np.ndarray) -> np.ndarray:
-    """Whether each straight move from ``starts`` to ``ends`` meets a wall, shape (n,)."""
+    """
+    Whether each straight move meets a wall, in the sense of the module's docstring.
+
+    :param starts: p, shape (n, 2) or (2,)
+    :param ends: q, same shape
+    :param walls: (m, 4) from :func:`make_walls`
+    :return: (n,) booleans
+    """
     t, _ = first_wall_hits(np.atleast_2d(starts), np.atleast_2d(ends), walls)
     return np.isfinite(t)
+
+
+def _check_actions(actions: np.ndarray, n_states: int) -> None:
+    """Raise a ValueError naming ``action`` unless there is one action in 0..3 per state."""
+    if len(actions) != n_states:
+        raise ValueError(f"actions must have one entry per state, got {len(actions)} for {n_states} states")
+    if actions.size and (
+        not np.issubdtype(actions.dtype, np.integer) or actions.min() < 0 or actions.max() > 3
+    ):
+        raise ValueError(
+            f"action must be an integer in 0..3 (NORTH, WEST, SOUTH, EAST), got {np.unique(actions)}"
+        )
 
 
 def maze_step(
@@ -126,46 +165,42 @@ def maze_step(
     :param walls: (m, 4) from :func:`make_walls`
     :param along_noise_std: standard deviation of the noise along the action's axis
     :param across_noise_std: standard deviation of the noise on the other axis
-    :return: next states (n, 2)
+    :return: next states (n, 2): strictly inside (0, 5)^2, and the move from ``states`` crosses no wall
     """
     states = np.asarray(states, dtype=np.float64).reshape(-1, 2)
     actions = np.asarray(actions).reshape(-1)
-    if len(actions) != len(states):
-        raise ValueError(
-            f"actions must have one entry per state, got {len(actions)} for {len(states)} states"
-        )
-    if actions.size and (
-        not np.issubdtype(actions.dtype, np.integer) or actions.min() < 0 or actions.max() > 3
-    ):
-        raise ValueError(
-            f"action must be an integer in 0..3 (NORTH, WEST, SOUTH, EAST), got {np.unique(actions)}"
-        )
+    _check_actions(actions, len(states))
     directions = ACTION_DIRECTIONS[actions]  # (n, 2)
     along = np.abs(directions)  # 1 on the action's axis, 0 on the other
     noise = rng.normal(size=(len(states), 2)) * (along * along_noise_std + (1 - along) * across_noise_std)
     ends = states + directions + noise
-    # Rows whose move may still cross a wall; each rebound shortens the move, so this ends.
+    # Rows whose move may still cross a wall: all of them at first, then those that rebounded.
     active = np.arange(len(states))
     for _ in range(MAX_REBOUNDS):
         t, wall = first_wall_hits(states[active], ends[active], walls)
         hit = np.isfinite(t)
-        if not hit.any():
-            return ends
         active, t, wall = active[hit], t[hit], wall[hit]
+        if not len(active):
+            break
         contact = states[active] + t[:, None] * (ends[active] - states[active])
-        # The wall is perpendicular to `axis`; push back along it, towards the side the move came from.
-        axis = (walls[wall, 0] != walls[wall, 2]).astype(np.int64)
+        # Push back along the wall's normal, towards the side the move came from (the sign of the move
+        # along the normal is never 0: the move changed sides of the wall's line).
+        axis = _wall_normal_axes(walls[wall])
         rows = np.arange(len(active))
         direction = np.sign(ends[active, axis] - states[active, axis])
-        contact[rows, axis] = walls[wall, axis] - direction * rng.uniform(
-            REBOUND_LOW, REBOUND_HIGH, len(active)
-        )
+        rebound = rng.uniform(REBOUND_LOW, REBOUND_HIGH, len(active))
+        contact[rows, axis] = walls[wall, axis] - direction * rebound
         ends[active] = contact
-    raise AssertionError("a move was still crossing walls after MAX_REBOUNDS rebounds")
+    assert not len(active), f"{len(active)} moves still crossed walls after {MAX_REBOUNDS} rebounds"
+    return ends
 
 
 def cell_of(states: np.ndarray) -> np.ndarray:
-    """The cell ``(i, j) = (ceil(x), ceil(y))`` of each state, in 1..5, shape (n, 2)."""
-    return np.clip(np.ceil(np.asarray(states, dtype=np.float64).reshape(-1, 2)), 1, MAZE_SIZE).astype(
-        np.int64
-    )
+    """
+    The cell of each state, as the paper's eq. 12 reads it.
+
+    :param states: (n, 2) or (2,) states ``(x, y)``
+    :return: (n, 2) integers ``(i, j) = (ceil(x), ceil(y))``, clipped to 1..5
+    """
+    cells = np.ceil(np.asarray(states, dtype=np.float64).reshape(-1, 2))
+    return np.clip(cells, 1, MAZE_SIZE).astype(np.int64)

@@ -9,11 +9,15 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from envs.dynamics import DEFAULT_WALLS, MAZE_SIZE, cell_of, make_walls, maze_step
+from envs.dynamics import DEFAULT_WALLS, EAST, MAZE_SIZE, NORTH, SOUTH, WEST, cell_of, make_walls, maze_step
 
 __all__ = [
     "CORNER_TASKS",
+    "EAST",
+    "NORTH",
     "N_TASKS",
+    "SOUTH",
+    "WEST",
     "SharedDynamicsMaze",
     "expected_reward",
     "task_cell",
@@ -28,10 +32,14 @@ Task = int | tuple[int, int]
 
 def task_index(task: Task) -> int:
     """
-    The index ``5 (i - 1) + (j - 1)`` of task tau_ij, given as ``(i, j)`` with i, j in 1..5 or as an index.
+    The index of a task: tau_ij (eq. 12) is ``5 (i - 1) + (j - 1)``.
 
+    :param task: ``(i, j)`` with i, j in 1..5, or an index in 0..24
+    :return: the index
     :raises ValueError: naming ``task`` for anything else
     """
+    if isinstance(task, np.ndarray) and task.ndim == 0:
+        task = task.item()
     if isinstance(task, (int, np.integer)) and not isinstance(task, bool):
         if 0 <= task < N_TASKS:
             return int(task)
@@ -45,8 +53,14 @@ def task_index(task: Task) -> int:
     )
 
 
-def task_cell(index: int) -> tuple[int, int]:
-    """The cell ``(i, j)`` rewarded by the task of this index."""
+def task_cell(index: Task) -> tuple[int, int]:
+    """
+    The cell rewarded by a task.
+
+    :param index: the task's index in 0..24 (or ``(i, j)``, returned as is once validated)
+    :return: ``(i, j)``, both in 1..5
+    :raises ValueError: naming ``task`` for anything else
+    """
     index = task_index(index)
     return index // MAZE_SIZE + 1, index % MAZE_SIZE + 1
 
@@ -55,7 +69,13 @@ CORNER_TASKS = tuple(task_index(cell) for cell in ((1, 1), (1, 5), (5, 1), (5, 5
 
 
 def task_indices(tasks: str | Iterable[Task]) -> tuple[int, ...]:
-    """The task indices of ``"all"``, ``"corners"`` or a list of tasks."""
+    """
+    The indices of a set of tasks.
+
+    :param tasks: ``"all"`` (the 25), ``"corners"`` (tau_11, tau_15, tau_51, tau_55) or a list of tasks
+    :return: their indices, in order
+    :raises ValueError: naming ``tasks`` (or ``task`` for a bad member)
+    """
     if isinstance(tasks, str):
         if tasks == "all":
             return tuple(range(N_TASKS))
@@ -76,9 +96,33 @@ def expected_reward(states: np.ndarray, task: Task) -> np.ndarray:
     :param task: the task, ``(i, j)`` or index
     :return: (n,) expected rewards
     """
-    i, j = task_cell(task_index(task))
+    i, j = task_cell(task)
     cells = cell_of(states)
     return ((cells[:, 0] == i) & (cells[:, 1] == j)).astype(np.float64)
+
+
+def _trajectory_lengths(
+    rng: np.random.Generator, termination_prob: float, n_transitions: int, cap: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """
+    Lengths of the trajectories that make up ``n_transitions`` transitions.
+
+    :param rng: random generator
+    :param termination_prob: probability of a reset after each step (lengths are geometric)
+    :param n_transitions: total length
+    :param cap: time limit of a trajectory
+    :return: the drawn lengths, and the same with the last one cut so that they sum to ``n_transitions``
+    """
+    lengths: list[int] = []
+    while sum(lengths) < n_transitions:
+        drawn = rng.geometric(termination_prob, size=64) if termination_prob > 0 else [cap] * 64
+        lengths.extend(int(min(length, cap)) for length in drawn)
+    ends = np.cumsum(lengths)
+    n_trajectories = int(np.searchsorted(ends, n_transitions) + 1)
+    full_lengths = np.array(lengths[:n_trajectories])
+    cut_lengths = full_lengths.copy()
+    cut_lengths[-1] -= int(ends[n_trajectories - 1]) - n_transitions
+    return full_lengths, cut_lengths
 
 
 class SharedDynamicsMaze(gym.Env):
@@ -118,9 +162,14 @@ class SharedDynamicsMaze(gym.Env):
     - `task`: the task, `(i, j)` or index (default `(1, 1)`); or
     - `tasks`: several tasks, a list, `"all"` or `"corners"`, with `task_schedule` `"fixed"` (the first),
       `"round_robin"` (in turn, one trajectory each) or `"random"` choosing the task of each trajectory.
-      `reset(options={"task": ...})` forces one.
-    - `walls`: axis-aligned segments `((x0, y0), (x1, y1))` on the integer grid; `()` for an open grid.
-    - `termination_prob`, `reward_noise_std`, `along_noise_std`, `across_noise_std`.
+      `reset(options={"task": ...})` forces one (any of the 25) for that trajectory without taking a
+      turn of the round robin; `reset(seed=...)` restarts the round robin from the first task.
+    - `walls`: axis-aligned segments `((x0, y0), (x1, y1))` on the integer grid, or an `(m, 4)` array of
+      them (default: the two walls above); `()` for an open grid. The border is always a wall.
+    - `termination_prob`: probability that a step ends the trajectory (default 0.02, as in the paper).
+    - `reward_noise_std`: standard deviation of the reward noise (default 1.0, eq. 12).
+    - `along_noise_std`, `across_noise_std`: standard deviations of the move noise along the action's
+      axis and across it (defaults 0.5 and 0.25).
     - `render_mode`: `"rgb_array"`: walls in black, the target cell in green, the trajectory since the
       last reset as a blue broken line.
 
@@ -179,7 +228,7 @@ class SharedDynamicsMaze(gym.Env):
         self.task = self.tasks[0]
         self.state = np.full(2, MAZE_SIZE / 2)
         self.trajectory: list[np.ndarray] = []
-        self._n_resets = 0
+        self._n_scheduled = 0  # trajectories whose task the round robin chose
 
     def expected_reward(self, states: np.ndarray, task: Task | None = None) -> np.ndarray:
         """Noise-free E[R_task(s)] for an ``(n, 2)`` array of states (default: the current task)."""
@@ -204,22 +253,10 @@ class SharedDynamicsMaze(gym.Env):
         """
         rng = np.random.default_rng(seed)
         cap = n_transitions if max_episode_steps is None else min(max_episode_steps, n_transitions)
-        lengths: list[int] = []
-        while sum(lengths) < n_transitions:
-            drawn = rng.geometric(self.termination_prob, size=64) if self.termination_prob > 0 else [cap] * 64
-            lengths.extend(int(min(length, cap)) for length in drawn)
-        ends = np.cumsum(lengths)
-        n_trajectories = int(np.searchsorted(ends, n_transitions) + 1)
-        full_lengths = np.array(lengths[:n_trajectories])
-        cut_lengths = full_lengths.copy()
-        cut_lengths[-1] -= int(ends[n_trajectories - 1]) - n_transitions
+        full_lengths, cut_lengths = _trajectory_lengths(rng, self.termination_prob, n_transitions, cap)
+        n_trajectories = len(full_lengths)
         offsets = np.concatenate([[0], np.cumsum(cut_lengths)[:-1]])
-        if self.task_schedule == "random":
-            tasks = np.asarray(self.tasks)[rng.integers(len(self.tasks), size=n_trajectories)]
-        elif self.task_schedule == "round_robin":
-            tasks = np.asarray(self.tasks)[np.arange(n_trajectories) % len(self.tasks)]
-        else:
-            tasks = np.full(n_trajectories, self.tasks[0])
+        tasks = self._scheduled_tasks(rng, n_trajectories)
         out = {
             "states": np.empty((n_transitions, 2)),
             "actions": rng.integers(4, size=n_transitions),
@@ -247,6 +284,15 @@ class SharedDynamicsMaze(gym.Env):
         out["terminations"] = np.zeros(n_transitions, dtype=bool)
         return out
 
+    def _scheduled_tasks(self, rng: np.random.Generator, n_trajectories: int) -> np.ndarray:
+        """The tasks the schedule gives to ``n_trajectories`` trajectories in a row, from the first."""
+        tasks = np.asarray(self.tasks)
+        if self.task_schedule == "random":
+            return tasks[rng.integers(len(tasks), size=n_trajectories)]
+        if self.task_schedule == "round_robin":
+            return tasks[np.arange(n_trajectories) % len(tasks)]
+        return np.full(n_trajectories, tasks[0])
+
     def _observation(self) -> dict[str, Any]:
         return {"state": self.state.astype(np.float32), "task": self.task}
 
@@ -255,21 +301,37 @@ class SharedDynamicsMaze(gym.Env):
         return {"task": self.task, "cell": (int(i), int(j))}
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        """
+        Start a trajectory from a uniform state, with the task its schedule gives.
+
+        :param seed: reseeds ``self.np_random`` and restarts the round robin
+        :param options: ``{"task": task}`` forces the task of this trajectory
+        :return: the observation and ``info`` (``task``, ``cell``)
+        """
         super().reset(seed=seed)
+        if seed is not None:
+            # A seeded reset starts everything afresh, the round robin included: same seed, same trajectory.
+            self._n_scheduled = 0
         if options and options.get("task") is not None:
             self.task = task_index(options["task"])
         elif self.task_schedule == "round_robin":
-            self.task = self.tasks[self._n_resets % len(self.tasks)]
+            self.task = self.tasks[self._n_scheduled % len(self.tasks)]
+            self._n_scheduled += 1
         elif self.task_schedule == "random":
             self.task = self.tasks[int(self.np_random.integers(len(self.tasks)))]
         else:
             self.task = self.tasks[0]
-        self._n_resets += 1
         self.state = self.np_random.uniform(0.0, MAZE_SIZE, size=2)
         self.trajectory = [self.state.copy()]
         return self._observation(), self._info()
 
     def step(self, action):
+        """
+        Move, rewarding the state the move starts from; the trajectory ends with ``termination_prob``.
+
+        :param action: NORTH, WEST, SOUTH or EAST (0..3)
+        :return: observation, reward, ``terminated`` (always False), ``truncated``, ``info``
+        """
         if not self.action_space.contains(action):
             raise ValueError(f"action must be an integer in 0..3 (NORTH, WEST, SOUTH, EAST), got {action!r}")
         # The reward is drawn for the state the transition starts from (eq. 12 on s_t).
@@ -287,7 +349,11 @@ class SharedDynamicsMaze(gym.Env):
         return self._observation(), float(reward), False, truncated, self._info()
 
     def render(self):
-        if self.render_mode != "rgb_array":
+        if self.render_mode is None:
+            gym.logger.warn(
+                "You are calling render method without specifying any render mode; "
+                'pass render_mode="rgb_array" at initialization'
+            )
             return None
         from envs.rendering import render_maze
 

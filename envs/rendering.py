@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from envs.dynamics import ACTION_DIRECTIONS, MAZE_SIZE, make_walls
+from envs.dynamics import ACTION_DIRECTIONS, EAST, MAZE_SIZE, NORTH, SOUTH, WEST, make_walls
 
 __all__ = ["draw_maze", "render_maze", "save_maze_png"]
 
@@ -23,14 +23,65 @@ WALL_WIDTH = 5.0
 
 def _green_heat_map(values: np.ndarray) -> np.ndarray:
     """
-    RGB image of values as shades of green, white at 0 and full green at the largest value; negative
-    values are shown as 0 (the paper shows rewards in green, and only where they are positive).
+    RGB image of values as shades of green.
+
+    Normalisation: values are clipped to [0, max], white at 0 and full green at the largest value, so
+    negative values (noisy reward estimates) show as white; the paper shows rewards in green, and only
+    where they are positive. NaN and infinite values show as white too.
+
+    :param values: any array of values
+    :return: the same shape plus a last axis of 3 RGB floats in [0, 1]
     """
     values = np.nan_to_num(np.asarray(values, dtype=np.float64), nan=0.0, posinf=0.0, neginf=0.0)
     top = values.max(initial=0.0)
     level = np.clip(values / top, 0.0, 1.0) if top > 0 else np.zeros_like(values)
     white, green = np.ones(3), np.array(TARGET_GREEN) * 0.8
     return white + level[..., None] * (green - white)
+
+
+def _cell_array(values: np.ndarray, name: str) -> np.ndarray:
+    """``values`` as a (5, 5) float array indexed ``[i - 1, j - 1]``, or a ValueError naming ``name``."""
+    array = np.asarray(values, dtype=np.float64)
+    if array.shape != (MAZE_SIZE, MAZE_SIZE):
+        raise ValueError(
+            f"{name} must be a ({MAZE_SIZE}, {MAZE_SIZE}) array indexed [i - 1, j - 1], got {array.shape}"
+        )
+    return array
+
+
+def _heat_values(cell_values: np.ndarray | None, state_values: np.ndarray | None) -> np.ndarray | None:
+    """The heat map to draw as an image over the square (rows are y), or None."""
+    if cell_values is not None:
+        return _cell_array(cell_values, "cell_values").T  # rows are y (j), columns are x (i)
+    if state_values is None:
+        return None
+    heat = np.asarray(state_values, dtype=np.float64)
+    if heat.ndim != 2 or not heat.size:
+        raise ValueError(f"state_values must be an (ny, nx) array, got shape {heat.shape}")
+    return heat
+
+
+def _draw_policy(ax: Any, policy: np.ndarray) -> None:
+    """Red arrows at the cell centres, pointing the way each cell's action moves (NORTH up)."""
+    actions = _cell_array(policy, "policy")
+    if not np.isin(actions, (NORTH, WEST, SOUTH, EAST)).all():
+        raise ValueError(f"policy must hold actions in 0..3, got {np.unique(actions)}")
+    centres = np.arange(MAZE_SIZE) + 0.5
+    x, y = np.meshgrid(centres, centres, indexing="ij")  # [i - 1, j - 1]
+    direction = ACTION_DIRECTIONS[actions.astype(np.int64)]
+    # angles="xy" draws the arrows in data coordinates, so they follow the inverted y axis.
+    ax.quiver(
+        x,
+        y,
+        direction[..., 0],
+        direction[..., 1],
+        color="red",
+        angles="xy",
+        scale_units="xy",
+        scale=2.5,
+        width=0.012,
+        zorder=3,
+    )
 
 
 def draw_maze(
@@ -47,8 +98,8 @@ def draw_maze(
     """
     Draw the maze and its overlays on a matplotlib Axes.
 
-    :param ax: the Axes
-    :param walls: wall layout (the border is added) or an ``(m, 4)`` array from ``make_walls``
+    :param ax: the Axes; its limits are set to the square, with y pointing down (NORTH is up)
+    :param walls: wall layout (the border is added), as accepted by :func:`envs.dynamics.make_walls`
     :param target_cells: cells ``(i, j)`` filled in green when no heat map is given, outlined otherwise
     :param trajectory: (t, 2) states joined by a blue broken line
     :param cell_values: (5, 5) values indexed ``[i - 1, j - 1]``, as a green heat map
@@ -58,13 +109,9 @@ def draw_maze(
     """
     from matplotlib.patches import Rectangle
 
-    segments = walls if isinstance(walls, np.ndarray) and walls.ndim == 2 else make_walls(walls)
+    segments = make_walls(walls)
     extent = (0.0, float(MAZE_SIZE), float(MAZE_SIZE), 0.0)
-    heat = None
-    if cell_values is not None:
-        heat = np.asarray(cell_values, dtype=np.float64).T  # rows are y (j), columns are x (i)
-    elif state_values is not None:
-        heat = np.asarray(state_values, dtype=np.float64)
+    heat = _heat_values(cell_values, state_values)
     if heat is not None:
         ax.imshow(_green_heat_map(heat), extent=extent, interpolation="nearest", zorder=0)
     for i, j in target_cells:
@@ -84,22 +131,7 @@ def draw_maze(
             [x0, x1], [y0, y1], color="black", linewidth=WALL_WIDTH, solid_capstyle="projecting", zorder=4
         )
     if policy is not None:
-        actions = np.asarray(policy, dtype=np.int64)
-        centres = np.arange(MAZE_SIZE) + 0.5
-        x, y = np.meshgrid(centres, centres, indexing="ij")  # [i - 1, j - 1]
-        direction = ACTION_DIRECTIONS[actions]
-        ax.quiver(
-            x,
-            y,
-            direction[..., 0],
-            direction[..., 1],
-            color="red",
-            angles="xy",
-            scale_units="xy",
-            scale=2.5,
-            width=0.012,
-            zorder=3,
-        )
+        _draw_policy(ax, policy)
     if trajectory is not None and len(trajectory):
         path = np.asarray(trajectory, dtype=np.float64)
         ax.plot(path[:, 0], path[:, 1], color="blue", linewidth=1.5, marker="o", markersize=2.5, zorder=2)
@@ -125,6 +157,8 @@ def render_maze(walls: Iterable | np.ndarray, *, size_px: int = 400, **overlays:
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
+    if not isinstance(size_px, (int, np.integer)) or size_px < 1:
+        raise ValueError(f"size_px must be a positive integer, got {size_px!r}")
     overlays.pop("title", None)
     figure = Figure(figsize=(size_px / 100, size_px / 100), dpi=100)
     canvas = FigureCanvasAgg(figure)
@@ -136,7 +170,13 @@ def render_maze(walls: Iterable | np.ndarray, *, size_px: int = 400, **overlays:
 
 
 def save_maze_png(path: str | os.PathLike, walls: Iterable | np.ndarray, **overlays: Any) -> None:
-    """Draw the maze (with its overlays and optional ``title``) to a PNG file."""
+    """
+    Draw the maze to a PNG file, with its title above it if one is given.
+
+    :param path: the file to write
+    :param walls: wall layout
+    :param overlays: keyword arguments of :func:`draw_maze`, ``title`` included
+    """
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 

@@ -8,8 +8,18 @@ import pytest
 from gymnasium.utils.env_checker import check_env as gym_check_env
 from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
-from envs import MAZE_ID, SharedDynamicsMaze, expected_reward, task_cell, task_index
-from envs.dynamics import cell_of
+from envs import (
+    CORNER_TASKS,
+    MAZE_ID,
+    N_TASKS,
+    NORTH,
+    SharedDynamicsMaze,
+    cell_of,
+    expected_reward,
+    segment_crosses_walls,
+    task_cell,
+    task_index,
+)
 
 
 def test_rewards_are_one_plus_noise_in_the_target_cell_and_noise_elsewhere():
@@ -38,6 +48,7 @@ def test_truncation_rate_is_two_percent_and_never_a_termination():
     """Each step resets with probability 0.02, as truncated=True; binomial tolerance of 5 standard errors."""
     env = gym.make(MAZE_ID)
     env.reset(seed=1)
+    env.action_space.seed(1)
     n, truncations = 20_000, 0
     for _ in range(n):
         _, _, terminated, truncated, _ = env.step(env.action_space.sample())
@@ -87,20 +98,63 @@ def test_same_seed_gives_the_same_trajectory():
         assert first[1:] == second[1:]
 
 
-def test_env_passes_gymnasium_and_sb3_checkers_without_warnings():
-    """Both env checkers accept the maze and say nothing."""
+@pytest.mark.parametrize(
+    "kwargs",
+    [{}, {"tasks": "corners", "task_schedule": "round_robin"}, {"tasks": "all", "task_schedule": "random"}],
+    ids=["single-task", "round-robin", "random-schedule"],
+)
+def test_env_passes_gymnasium_and_sb3_checkers_without_warnings(kwargs):
+    """
+    Both env checkers accept the maze and say nothing; a warning points at a space, seeding or render
+    mismatch (the round robin must restart on a seeded reset for the determinism check).
+    """
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        gym_check_env(gym.make(MAZE_ID).unwrapped)
-        sb3_check_env(SharedDynamicsMaze())
-        sb3_check_env(gym.make(MAZE_ID))
+        gym_check_env(gym.make(MAZE_ID, **kwargs).unwrapped)
+        sb3_check_env(SharedDynamicsMaze(**kwargs))
+        sb3_check_env(gym.make(MAZE_ID, **kwargs))
     assert [str(w.message) for w in caught] == []
 
 
+def test_states_stay_inside_and_trajectories_never_cross_walls():
+    """
+    Stepping the env keeps the state strictly inside (0, 5)^2, in the observation space, and each step's
+    move off every wall; the trajectory kept for rendering is the states since the last reset.
+    """
+    env = SharedDynamicsMaze(termination_prob=0.0)
+    obs, _ = env.reset(seed=7)
+    for _ in range(2000):
+        obs, _, _, _, _ = env.step(env.np_random.integers(4))
+        assert env.observation_space.contains(obs)
+    path = np.array(env.trajectory)
+    assert path.shape == (2001, 2) and np.all((path > 0) & (path < 5))
+    assert not segment_crosses_walls(path[:-1], path[1:], env.walls).any()
+    env.reset()
+    assert len(env.trajectory) == 1
+
+
 def test_tasks_are_named_by_cell_or_index():
-    """tau_ij is index 5 (i - 1) + (j - 1), both ways."""
+    """tau_ij is index 5 (i - 1) + (j - 1) both ways, for all 25 tasks; the corners are tau_11, 15, 51, 55."""
     assert task_index((1, 1)) == 0 and task_index((1, 5)) == 4 and task_index((5, 1)) == 20
-    assert task_index(24) == 24 and task_cell(7) == (2, 3)
+    assert task_index(24) == 24 and task_index(np.int64(3)) == 3 and task_cell(7) == (2, 3)
+    assert [task_index(task_cell(index)) for index in range(N_TASKS)] == list(range(N_TASKS))
+    assert CORNER_TASKS == (0, 4, 20, 24)
+
+
+@pytest.mark.parametrize("task", [(0, 3), (6, 1), 25, -1, "foo", (1.0, 2), (1, 2, 3), True], ids=repr)
+def test_task_index_refuses_anything_but_a_cell_or_an_index(task):
+    """task_index names the task for cells outside 1..5, indices outside 0..24 and other types."""
+    with pytest.raises(ValueError, match="task"):
+        task_index(task)
+
+
+def test_expected_reward_is_one_in_the_task_cell_only():
+    """The module function and the env method (current task by default) give eq. 12's noise-free mean."""
+    states = np.array([[0.5, 4.5], [0.5, 0.5], [1.0, 5.0], [1.01, 4.5]])
+    np.testing.assert_array_equal(expected_reward(states, (1, 5)), [1.0, 0.0, 1.0, 0.0])
+    env = SharedDynamicsMaze(task=(1, 5))
+    np.testing.assert_array_equal(env.expected_reward(states), [1.0, 0.0, 1.0, 0.0])
+    np.testing.assert_array_equal(env.expected_reward(states, task=0), [0.0, 1.0, 0.0, 0.0])
 
 
 def test_round_robin_cycles_and_info_matches_the_observation():
@@ -112,8 +166,21 @@ def test_round_robin_cycles_and_info_matches_the_observation():
         assert obs["task"] == info["task"]
         seen.append(info["task"])
     assert seen == [0, 4, 20, 24, 0, 4]
-    _, _, _, _, info = env.step(0)
-    assert info["cell"] == tuple(cell_of(env.state)[0])
+    obs, _, _, _, info = env.step(NORTH)
+    assert info["cell"] == tuple(cell_of(env.state)[0]) and info["task"] == obs["task"] == 4
+
+
+def test_forced_tasks_skip_the_round_robin_and_seeds_restart_it():
+    """
+    reset(options={'task': ...}) serves any task without taking a turn (else the cycle would skip a task),
+    and a seeded reset starts the cycle again from the first task (else the same seed differs).
+    """
+    env = SharedDynamicsMaze(tasks="all", task_schedule="round_robin")
+    assert [env.reset()[1]["task"] for _ in range(N_TASKS)] == list(range(N_TASKS))
+    assert env.reset()[1]["task"] == 0
+    assert env.reset(options={"task": (3, 3)})[0]["task"] == 12
+    assert env.reset()[1]["task"] == 1
+    assert env.reset(seed=0)[1]["task"] == 0
 
 
 def test_random_schedule_draws_from_the_given_tasks_and_options_force_one():
@@ -139,9 +206,15 @@ def test_time_limit_comes_from_registration_kwargs():
         ({"task": (6, 1)}, "task"),
         ({"task": 25}, "task"),
         ({"task": -1}, "task"),
+        ({"task": "foo"}, "task"),
+        ({"tasks": [(1, 1), (0, 3)]}, "task"),
+        ({"tasks": []}, "tasks"),
         ({"tasks": "edges"}, "tasks"),
         ({"walls": [((2.5, 0), (2.5, 3))]}, "walls"),
         ({"termination_prob": -0.1}, "termination_prob"),
+        ({"termination_prob": 1.5}, "termination_prob"),
+        ({"reward_noise_std": -1.0}, "reward_noise_std"),
+        ({"render_mode": "human"}, "render_mode"),
         ({"task_schedule": "lottery"}, "task_schedule"),
         ({"task": 1, "tasks": "all"}, "task"),
     ],
@@ -150,9 +223,15 @@ def test_time_limit_comes_from_registration_kwargs():
         "i-six",
         "index-25",
         "index-negative",
+        "text",
+        "bad-member",
+        "no-tasks",
         "unknown-set",
         "off-grid-wall",
         "negative-p",
+        "p-above-one",
+        "negative-reward-noise",
+        "unknown-render-mode",
         "unknown-schedule",
         "task-and-tasks",
     ],
@@ -170,3 +249,11 @@ def test_actions_outside_0_3_are_refused(action):
     env.reset(seed=0)
     with pytest.raises(ValueError, match="action"):
         env.step(action)
+
+
+def test_render_without_a_render_mode_warns_and_returns_nothing():
+    """As in Gymnasium's own envs: rendering an env made without render_mode is a user error worth a word."""
+    env = SharedDynamicsMaze()
+    env.reset(seed=0)
+    with pytest.warns(UserWarning, match="render mode"):
+        assert env.render() is None
