@@ -1,4 +1,8 @@
-"""Gaussian RBF features and similarity measures (paper, eq. 3, 6, 7, 11), vectorised over batches."""
+"""Gaussian RBF features and similarity measures (paper, eq. 3, 6, 7, 11), vectorised over batches.
+
+States and features are float64 arrays with one row per point: states (n, d), features phi (n, k).
+Distances that overflow (states beyond ~1e150) count as infinite, so their similarity is 0, never NaN.
+"""
 
 from __future__ import annotations
 
@@ -19,61 +23,118 @@ __all__ = [
 
 
 def squared_distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """||a_i - b_j||^2 for all pairs: (n, d), (m, d) -> (n, m), clipped at 0 against rounding."""
+    """
+    ||a_i - b_j||^2 for all pairs, by the expansion |a|^2 + |b|^2 - 2 a.b (one matrix product).
+
+    Both sets are first centred on the mean of ``b``: the expansion cancels catastrophically for points far
+    from the origin and close to each other, and centring brings them near it. Rounding can still leave
+    small negatives, clipped at 0.
+
+    :param a: points (n, d)
+    :param b: points (m, d)
+    :return: (n, m), the transpose of a C-contiguous (m, n) array
+    """
     a, b = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
-    distances = (a * a).sum(axis=1)[:, None] + (b * b).sum(axis=1)[None, :] - 2.0 * a @ b.T
-    return np.maximum(distances, 0.0)
+    with np.errstate(over="ignore", invalid="ignore"):
+        centre = b.mean(axis=0) if len(b) else np.zeros(b.shape[1])
+        a, b = a - centre, b - centre
+        a_norms, b_norms = np.einsum("ij,ij->i", a, a), np.einsum("ij,ij->i", b, b)  # (n,), (m,)
+        # Built as (m, n), in place: long rows and no (n, m) temporaries, and row sums of the returned
+        # transpose (the kernel sums of eq. 8, with m << n samples) add contiguous columns.
+        distances = b @ a.T
+        distances *= -2.0
+        distances += a_norms[None, :]
+        distances += b_norms[:, None]
+    if max(a_norms.max(initial=0.0), b_norms.max(initial=0.0)) > 1e300:
+        # inf - inf only happens between overflowing points: treat them as infinitely far.
+        distances[np.isnan(distances)] = np.inf
+    return np.maximum(distances, 0.0, out=distances).T
 
 
 def gaussian_similarity(a: np.ndarray, b: np.ndarray, sigma: float) -> np.ndarray:
-    """S_S(a_i, b_j) = exp(-||a_i - b_j||^2 / (2 sigma^2)) (eq. 6): (n, d), (m, d) -> (n, m)."""
-    return np.exp(-squared_distances(a, b) / (2.0 * sigma**2))
+    """
+    S_S(a_i, b_j) = exp(-||a_i - b_j||^2 / (2 sigma^2)) (eq. 6).
+
+    :param a: states (n, d)
+    :param b: states (m, d)
+    :param sigma: width of the Gaussian (> 0)
+    :return: (n, m), in [0, 1]
+    """
+    exponent = squared_distances(a, b)  # (n, m), turned into the similarity in place
+    with np.errstate(over="ignore"):  # a huge finite distance over 2 sigma^2 is inf: similarity 0
+        exponent *= -1.0 / (2.0 * sigma**2)
+    return np.exp(exponent, out=exponent)  # eq. 6
 
 
 def feature_similarity(phi_a: np.ndarray, phi_b: np.ndarray, sigma: float) -> np.ndarray:
-    """S_Phi (eq. 7): the similarity of eq. 6 between feature vectors, (n, k), (m, k) -> (n, m)."""
-    return gaussian_similarity(phi_a, phi_b, sigma)
+    """
+    S_Phi(s, s') = exp(-||Phi(s) - Phi(s')||^2 / (2 sigma^2)) (eq. 7): eq. 6 between feature vectors.
+
+    :param phi_a: features (n, k)
+    :param phi_b: features (m, k)
+    :param sigma: width of the Gaussian (> 0)
+    :return: (n, m), in [0, 1]
+    """
+    return gaussian_similarity(phi_a, phi_b, sigma)  # eq. 7
 
 
 def grid_centres(low: np.ndarray, high: np.ndarray, n_per_dim: int) -> np.ndarray:
     """
     Centres of the cells of a regular grid with ``n_per_dim`` cells per dimension over the box
-    [low, high]; on the maze (0, 5)^2 with 5 per dimension they are the paper's (i - 0.5, j - 0.5).
+    [low, high]; on the maze (0, 5)^2 with 5 per dimension they are the paper's s_ij = (i - 0.5, j - 0.5).
 
-    :return: (n_per_dim ** d, d), the first coordinate varying slowest (index 5 (i - 1) + (j - 1) on the maze)
+    :param low: lower corner of the box, (d,)
+    :param high: upper corner of the box, (d,)
+    :param n_per_dim: cells per dimension
+    :return: (n_per_dim ** d, d), the first coordinate varying slowest: on the maze, s_ij is row
+        5 (i - 1) + (j - 1), the maze's task index
     """
     low, high = np.asarray(low, dtype=np.float64), np.asarray(high, dtype=np.float64)
     axes = [
         lo + (np.arange(n_per_dim) + 0.5) * (hi - lo) / n_per_dim for lo, hi in zip(low, high, strict=True)
     ]
+    # indexing="ij" makes the first axis vary slowest once flattened.
     return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, len(low))
 
 
 def rbf_features(states: np.ndarray, centres: np.ndarray, sigma: float) -> np.ndarray:
-    """phi_ij(s) = S_S(s, s_ij) (eq. 11): states (n, d), centres (k, d) -> (n, k)."""
-    return gaussian_similarity(states, centres, sigma)
+    """
+    phi_ij(s) = S_S(s, s_ij) (eq. 11).
+
+    :param states: states (n, d)
+    :param centres: RBF centres (k, d)
+    :param sigma: width of the RBFs (> 0)
+    :return: Phi(s), (n, k)
+    """
+    return gaussian_similarity(states, centres, sigma)  # eq. 11
 
 
 def state_action_features(phi: np.ndarray, actions: np.ndarray, n_actions: int) -> np.ndarray:
     """
-    Phi(s, a) = {1_{a = a'} Phi(s)}_{a'} (eq. 3): phi (n, k), actions (n,) -> (n, k * n_actions), block a'
-    holding phi on the rows whose action is a'.
+    Phi(s, a) = {1_{a = a'} Phi(s)}_{a'} (eq. 3): block a' (columns a' k .. (a' + 1) k - 1) holds Phi(s) on
+    the rows whose action is a', zeros elsewhere.
+
+    :param phi: Phi(s), (n, k)
+    :param actions: a, (n,) integers in 0..n_actions-1
+    :param n_actions: number of actions
+    :return: Phi(s, a), (n, n_actions * k)
     """
     n, k = phi.shape
     blocks = np.zeros((n, n_actions, k))
-    blocks[np.arange(n), np.asarray(actions, dtype=np.int64)] = phi
+    blocks[np.arange(n), np.asarray(actions, dtype=np.int64)] = phi  # eq. 3
     return blocks.reshape(n, n_actions * k)
 
 
 @dataclass(frozen=True)
 class RBFGrid:
     """
-    Gaussian RBF features on a regular grid of centres over a box (eq. 11).
+    Gaussian RBF features Phi(s) on a regular grid of centres over a box (eq. 11); the paper's are
+    ``RBFGrid(low=(0, 0), high=(5, 5), n_per_dim=5, sigma=0.2)``.
 
-    :param low: lower corner of the box, shape (d,)
-    :param high: upper corner of the box, shape (d,)
+    :param low: lower corner of the box, (d,)
+    :param high: upper corner of the box, (d,)
     :param n_per_dim: centres per dimension
-    :param sigma: width of each RBF
+    :param sigma: width of each RBF (> 0)
     """
 
     low: tuple[float, ...]
@@ -84,37 +145,50 @@ class RBFGrid:
 
     def __post_init__(self) -> None:
         if not self.sigma > 0:
-            raise ValueError(f"sigma must be > 0, got {self.sigma}")
+            raise ValueError(f"sigma must be > 0 (the width of the RBFs), got {self.sigma}")
         if self.n_per_dim < 1:
-            raise ValueError(f"n_per_dim must be >= 1, got {self.n_per_dim}")
-        object.__setattr__(self, "low", tuple(float(v) for v in np.atleast_1d(self.low)))
-        object.__setattr__(self, "high", tuple(float(v) for v in np.atleast_1d(self.high)))
-        object.__setattr__(
-            self, "centres", grid_centres(np.array(self.low), np.array(self.high), self.n_per_dim)
-        )
+            raise ValueError(f"n_per_dim must be an integer >= 1, got {self.n_per_dim}")
+        low = tuple(float(v) for v in np.atleast_1d(self.low))
+        high = tuple(float(v) for v in np.atleast_1d(self.high))
+        if len(low) != len(high) or not np.all(np.isfinite(low + high)) or not np.all(np.less(low, high)):
+            raise ValueError(f"low and high must be finite, of one length, low < high; got {low}, {high}")
+        object.__setattr__(self, "low", low)
+        object.__setattr__(self, "high", high)
+        object.__setattr__(self, "centres", grid_centres(np.array(low), np.array(high), self.n_per_dim))
 
     @classmethod
     def for_box(cls, box: spaces.Box, n_per_dim: int = 5, sigma: float = 0.2) -> RBFGrid:
-        """The grid over a Box space (finite bounds)."""
+        """
+        The grid over a Box space.
+
+        :param box: the state space (finite bounds)
+        :param n_per_dim: centres per dimension
+        :param sigma: width of each RBF
+        :return: the grid
+        """
         return cls(tuple(box.low.astype(float)), tuple(box.high.astype(float)), n_per_dim, sigma)
 
     @property
     def n_features(self) -> int:
+        """k, the number of centres."""
         return len(self.centres)
 
     def __call__(self, states: np.ndarray) -> np.ndarray:
         """
-        Phi(s) for states (n, d) -> (n, n_features), equal to ``rbf_features(states, centres, sigma)``.
+        Phi(s), equal to ``rbf_features(states, self.centres, self.sigma)``.
 
         On a grid the Gaussian factorises over the dimensions, so it takes n_per_dim exponentials per
         dimension instead of one per centre.
+
+        :param states: states (n, d)
+        :return: (n, n_features)
         """
         states = np.asarray(states, dtype=np.float64).reshape(-1, len(self.low))
         phi = np.ones((len(states), 1))
         for dim, (low, high) in enumerate(zip(self.low, self.high, strict=True)):
             centres = low + (np.arange(self.n_per_dim) + 0.5) * (high - low) / self.n_per_dim
-            # (n, n_per_dim)
-            factor = np.exp(-((states[:, dim : dim + 1] - centres) ** 2) / (2.0 * self.sigma**2))
-            # Outer product, the first dimension varying slowest as in grid_centres.
+            with np.errstate(over="ignore"):  # (n, n_per_dim)
+                factor = np.exp(-((states[:, dim : dim + 1] - centres) ** 2) / (2.0 * self.sigma**2))
+            # Outer product, the first dimension varying slowest as in grid_centres (eq. 11 factorised).
             phi = (phi[:, :, None] * factor[:, None, :]).reshape(len(states), phi.shape[1] * self.n_per_dim)
         return phi

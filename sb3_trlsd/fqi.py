@@ -6,15 +6,18 @@ bootstrap, as a trajectory reset is not the end of the task.
 
 from __future__ import annotations
 
-import copy
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 import torch as th
 from scipy.linalg import cho_factor, cho_solve
 
+from sb3_trlsd.arrays import GrowableArray
+
 __all__ = [
     "LinearFQIResult",
+    "LinearFQISolver",
     "MLPFQIResult",
     "bellman_targets",
     "fit_linear_fqi",
@@ -23,6 +26,10 @@ __all__ = [
     "make_q_network",
     "return_bounds",
 ]
+
+DEFAULT_MAX_ITERATIONS = 500
+DEFAULT_TOL = 1e-6
+DEFAULT_RIDGE = 1e-3
 
 
 @dataclass(frozen=True)
@@ -43,12 +50,24 @@ class MLPFQIResult:
 
 
 def linear_q_values(phi: np.ndarray, theta: np.ndarray) -> np.ndarray:
-    """Q(s, .) = theta . Phi(s) (eq. 3): phi (n, k), theta (n_actions, k) -> (n, n_actions)."""
-    return phi @ theta.T
+    """
+    Q(s, a) = theta_a . Phi(s) (eq. 3) for every action.
+
+    :param phi: Phi(s), (n, k)
+    :param theta: (n_actions, k)
+    :return: (n, n_actions)
+    """
+    return phi @ theta.T  # eq. 3
 
 
 def return_bounds(rewards: np.ndarray, gamma: float) -> tuple[float, float]:
-    """The range of discounted returns the rewards allow: [min(r, 0), max(r, 0)] / (1 - gamma)."""
+    """
+    The discounted returns the rewards allow, terminated or not: [min(r, 0), max(r, 0)] / (1 - gamma).
+
+    :param rewards: r, (n,)
+    :param gamma: discount factor in [0, 1)
+    :return: (low, high)
+    """
     if not len(rewards):
         return 0.0, 0.0
     return min(float(rewards.min()), 0.0) / (1 - gamma), max(float(rewards.max()), 0.0) / (1 - gamma)
@@ -62,15 +81,197 @@ def bellman_targets(
     bounds: tuple[float, float] = (-np.inf, np.inf),
 ) -> np.ndarray:
     """
-    y = r + gamma * max_a' Q(s', a'), without the bootstrap where s' is absorbing (eq. 1, 4): (n,).
+    y = r + gamma * max_a' Q(s', a'), without the bootstrap where s' is absorbing (eq. 1, 4).
 
     The bootstrap is clipped to ``bounds``: with function approximation and few samples, off-policy
     Fitted-Q Iteration is not a contraction and can diverge; no true Q-value lies outside
     ``return_bounds(rewards, gamma)``, so clipping to them leaves a well-behaved fit unchanged.
+
+    :param rewards: r, (n,)
+    :param next_q: Q(s', .), (n, n_actions); fastest as the transpose of a C-contiguous (n_actions, n) array
+    :param terminated: s' is absorbing, (n,) bool
+    :param gamma: discount factor
+    :param bounds: (low, high) clip of the bootstrap
+    :return: y, (n,)
     """
-    # Reduced along the first axis of next_q.T: fast when next_q is the transpose of an (n_actions, n) array.
+    # Reduced along the first axis of next_q.T, contiguous when next_q is a transposed (n_actions, n).
     bootstrap = np.clip(np.max(next_q.T, axis=0), *bounds)
-    return rewards + gamma * np.where(terminated, 0.0, bootstrap)
+    return rewards + gamma * np.where(terminated, 0.0, bootstrap)  # eq. 1
+
+
+class _ActionBlock(NamedTuple):
+    """The transitions of one action, as a fit uses them."""
+
+    phi: np.ndarray  # X_a, (n_a, k)
+    next_phi_t: np.ndarray  # Phi(s')^T, (k, n_a)
+    terminated: np.ndarray  # (n_a,) bool
+    rows: np.ndarray  # their rows in the order of extend calls, (n_a,) int
+    inverse: np.ndarray  # (X_a^T X_a + ridge I)^-1, (k, k)
+
+
+class LinearFQISolver:
+    """
+    Linear Fitted-Q Iteration on a set of transitions that only grows, for rewards that change between fits
+    (the algorithm refits every task on the same shared transitions with its own relabelled rewards, and
+    appends transitions between refits).
+
+    Q(s, a) = theta_a . Phi(s) (eq. 3). Since Phi(s, a) is block-diagonal in the actions, the projection of
+    eq. 4 splits into one ridge regression per action, theta_a = (X_a^T X_a + ridge I)^-1 X_a^T y_a. The
+    rows of each action are stored contiguously and X_a^T X_a + ridge I is kept as a running sum over
+    ``extend`` calls, its inverse (k x k, from a Cholesky factorisation) cached until the next ``extend``:
+    a fit only recomputes the targets y and multiplies.
+
+    :param n_features: k, the width of Phi(s)
+    :param n_actions: number of actions
+    :param ridge: Tikhonov regularisation of each per-action projection (> 0), which keeps it well posed
+        where a feature has (almost) no sample of an action. The default 1e-3 is negligible next to the
+        Gram diagonal of the maze's RBFs (~30 with 6,500 samples per action), so it barely biases theta
+    """
+
+    def __init__(self, n_features: int, n_actions: int, ridge: float = DEFAULT_RIDGE):
+        if not n_features >= 1 or not n_actions >= 1:
+            raise ValueError(f"n_features and n_actions must be >= 1, got {n_features} and {n_actions}")
+        if not ridge > 0:
+            raise ValueError(f"ridge must be > 0 (it keeps each projection well posed), got {ridge}")
+        self.n_features, self.n_actions, self.ridge = int(n_features), int(n_actions), float(ridge)
+        k = self.n_features
+        self._phi = [GrowableArray(k) for _ in range(n_actions)]  # X_a, (n_a, k)
+        self._next_phi = [GrowableArray(k) for _ in range(n_actions)]  # Phi(s') of those rows, (n_a, k)
+        self._terminated = [GrowableArray(1) for _ in range(n_actions)]  # (n_a, 1), 1.0 if absorbing
+        # Row of each transition in the order of extend calls, as float64 (exact below 2^53).
+        self._rows = [GrowableArray(1) for _ in range(n_actions)]
+        self._gram = np.tile(self.ridge * np.eye(k), (n_actions, 1, 1))  # X_a^T X_a + ridge I, (A, k, k)
+        self._blocks: dict[int, _ActionBlock] | None = None  # built by _action_blocks, reset by extend
+        self.n_transitions = 0
+
+    def __repr__(self) -> str:
+        return (
+            f"LinearFQISolver(n_features={self.n_features}, n_actions={self.n_actions}, "
+            f"ridge={self.ridge:g}, n_transitions={self.n_transitions})"
+        )
+
+    def extend(
+        self, phi: np.ndarray, actions: np.ndarray, next_phi: np.ndarray, terminated: np.ndarray
+    ) -> None:
+        """
+        Append transitions; their rewards are given to ``fit``, after those of the earlier transitions.
+
+        :param phi: Phi(s), (n, k)
+        :param actions: a, (n,) integers in 0..n_actions-1
+        :param next_phi: Phi(s'), (n, k)
+        :param terminated: s' is absorbing (no bootstrap), (n,) bool; truncated transitions are not
+        """
+        phi, next_phi = np.asarray(phi, dtype=np.float64), np.asarray(next_phi, dtype=np.float64)
+        actions, terminated = np.asarray(actions), np.asarray(terminated, dtype=bool)
+        n = len(phi)
+        if phi.shape != (n, self.n_features) or next_phi.shape != phi.shape:
+            raise ValueError(
+                f"phi and next_phi must have shape (n, {self.n_features}), "
+                f"got {phi.shape} and {next_phi.shape}"
+            )
+        if actions.shape != (n,) or terminated.shape != (n,):
+            raise ValueError(
+                f"actions and terminated must have shape ({n},), got {actions.shape} and {terminated.shape}"
+            )
+        if n and (actions.min() < 0 or actions.max() >= self.n_actions or np.any(actions % 1)):
+            raise ValueError(f"actions must be integers in 0..{self.n_actions - 1}")
+        actions = actions.astype(np.int64)
+        for a in range(self.n_actions):
+            rows = np.flatnonzero(actions == a)
+            if not len(rows):
+                continue
+            block = phi[rows]  # (n_a, k)
+            self._gram[a] += block.T @ block
+            self._phi[a].append(block)
+            self._next_phi[a].append(next_phi[rows])
+            self._terminated[a].append(terminated[rows, None])
+            self._rows[a].append(self.n_transitions + rows[:, None])
+        self._blocks = None
+        self.n_transitions += n
+
+    def _action_blocks(self) -> dict[int, _ActionBlock]:
+        """The data of each action with samples, arranged for the iterations, built once per ``extend``."""
+        if self._blocks is None:
+            identity = np.eye(self.n_features)
+            self._blocks = {
+                a: _ActionBlock(
+                    phi=self._phi[a].view(),
+                    # Contiguous (k, n_a): theta @ next_phi_t is twice as fast as with a transposed view.
+                    next_phi_t=np.ascontiguousarray(self._next_phi[a].view().T),
+                    terminated=self._terminated[a].view()[:, 0] > 0,
+                    rows=self._rows[a].view()[:, 0].astype(np.int64),
+                    inverse=cho_solve(cho_factor(self._gram[a]), identity),
+                )
+                for a in range(self.n_actions)
+                if len(self._phi[a])
+            }
+        return self._blocks
+
+    def fit(
+        self,
+        rewards: np.ndarray,
+        *,
+        gamma: float,
+        theta0: np.ndarray | None = None,
+        max_iterations: int = DEFAULT_MAX_ITERATIONS,
+        tol: float = DEFAULT_TOL,
+    ) -> LinearFQIResult:
+        """
+        Fitted-Q Iteration on the stored transitions with the given rewards (see ``fit_linear_fqi``).
+
+        :param rewards: r of every stored transition in the order they were added, (n_transitions,)
+        :param gamma: discount factor in [0, 1)
+        :param theta0: warm start, (n_actions, k); zeros if None. Actions without samples keep it
+        :param max_iterations: cap on the iterations (>= 1)
+        :param tol: stop when max |theta_new - theta| <= tol * (1 + max |theta_new|)
+        :return: theta, iterations run and the RMS Bellman residual
+        """
+        rewards = np.asarray(rewards, dtype=np.float64)
+        if rewards.shape != (self.n_transitions,) or not np.all(np.isfinite(rewards)):
+            raise ValueError(
+                f"rewards must be finite, one per stored transition: shape ({self.n_transitions},), "
+                f"got {rewards.shape}"
+            )
+        if not 0 <= gamma < 1:
+            raise ValueError(f"gamma must be in [0, 1), got {gamma}")
+        if not max_iterations >= 1 or not tol >= 0:
+            raise ValueError(f"max_iterations must be >= 1 and tol >= 0, got {max_iterations} and {tol}")
+        shape = (self.n_actions, self.n_features)
+        theta = np.zeros(shape) if theta0 is None else np.array(theta0, dtype=np.float64, copy=True)
+        if theta.shape != shape:
+            raise ValueError(f"theta0 must have shape {shape}, got {theta.shape}")
+        if not self.n_transitions:
+            return LinearFQIResult(theta=theta, iterations=0, bellman_residual=0.0)
+
+        blocks = self._action_blocks()
+        block_rewards = {a: rewards[block.rows] for a, block in blocks.items()}  # r of block a, (n_a,)
+        bounds = return_bounds(rewards, gamma)
+
+        def targets_of(theta: np.ndarray) -> dict[int, np.ndarray]:
+            # y_a = r + gamma max_a' theta_a' . Phi(s') (eq. 4), next Q as the transpose of (A, n_a)
+            return {
+                a: bellman_targets(
+                    block_rewards[a], (theta @ block.next_phi_t).T, block.terminated, gamma, bounds
+                )
+                for a, block in blocks.items()
+            }
+
+        targets = targets_of(theta)
+        iterations = 0
+        for iterations in range(1, max_iterations + 1):  # noqa: B007 (the count is returned)
+            new_theta = theta.copy()
+            for a, block in blocks.items():
+                new_theta[a] = block.inverse @ (block.phi.T @ targets[a])  # eq. 4, block a
+            change = np.abs(new_theta - theta).max()
+            theta = new_theta
+            targets = targets_of(theta)
+            if change <= tol * (1.0 + np.abs(theta).max()):
+                break
+        squared_error = sum(
+            float(np.sum((targets[a] - block.phi @ theta[a]) ** 2)) for a, block in blocks.items()
+        )
+        residual = float(np.sqrt(squared_error / self.n_transitions))
+        return LinearFQIResult(theta=theta, iterations=iterations, bellman_residual=residual)
 
 
 def fit_linear_fqi(
@@ -83,72 +284,50 @@ def fit_linear_fqi(
     n_actions: int,
     gamma: float,
     theta0: np.ndarray | None = None,
-    max_iterations: int = 500,
-    tol: float = 1e-6,
-    ridge: float = 1e-3,
+    max_iterations: int = DEFAULT_MAX_ITERATIONS,
+    tol: float = DEFAULT_TOL,
+    ridge: float = DEFAULT_RIDGE,
 ) -> LinearFQIResult:
     """
-    Linear Fitted-Q Iteration: theta_a <- (X_a^T X_a + ridge I)^-1 X_a^T y_a for each action a (eq. 4 in its
-    per-action block form, since Phi(s, a) of eq. 3 is block-diagonal in the actions).
+    Linear Fitted-Q Iteration in one call: theta_a <- (X_a^T X_a + ridge I)^-1 X_a^T y_a for each action a
+    (eq. 4 in its per-action block form, since Phi(s, a) of eq. 3 is block-diagonal in the actions), with
+    y = r + gamma * (1 - terminated) * max_a' theta_a' . Phi(s').
 
-    The per-action Gram matrices are factored once (Cholesky): only the targets y change between
-    iterations, so an iteration is a matrix product for the targets and k x k solves. Iterations stop
-    when max |theta_new - theta| <= tol * (1 + max |theta|), a tolerance relative to the scale of Q
-    (optimistic rewards make it large), or after ``max_iterations``.
+    The per-action Gram matrices are factored once: only the targets y change between iterations. The
+    iterations stop when max |theta_new - theta| <= tol * (1 + max |theta_new|), a tolerance relative to
+    the scale of theta (optimistic rewards make it large) and absolute below 1, or after
+    ``max_iterations``. To refit the same, growing transitions with other rewards, keep a
+    ``LinearFQISolver`` instead: it keeps the factorisation between fits.
 
     :param phi: Phi(s), (n, k)
     :param actions: a, (n,)
     :param rewards: r, (n,)
     :param next_phi: Phi(s'), (n, k)
-    :param terminated: s' is absorbing, (n,) bool
+    :param terminated: s' is absorbing, (n,) bool; truncations (terminated False) bootstrap
     :param n_actions: number of actions
-    :param gamma: discount factor
-    :param theta0: warm start, (n_actions, k); zeros if None
-    :param max_iterations: cap on the iterations
-    :param tol: relative stopping tolerance
-    :param ridge: Tikhonov regularisation of each projection, which keeps it well posed where a feature has
-        (almost) no sample of an action
-    :return: theta, iterations run and the RMS Bellman residual of the last iteration
+    :param gamma: discount factor in [0, 1)
+    :param theta0: warm start, (n_actions, k); zeros if None. Actions without samples keep it
+    :param max_iterations: cap on the iterations (default 500: a cold fit with gamma = 0.9 needs ~130 for
+        a contraction of factor gamma, far fewer in practice and when warm-started)
+    :param tol: relative stopping tolerance (default 1e-6)
+    :param ridge: Tikhonov regularisation of each projection (default 1e-3, see ``LinearFQISolver``)
+    :return: theta (n_actions, k), iterations run and the RMS Bellman residual sqrt(mean (y - X theta)^2) of
+        the final theta
     """
-    n, k = phi.shape
-    actions = np.asarray(actions, dtype=np.int64)
-    theta = np.zeros((n_actions, k)) if theta0 is None else np.array(theta0, dtype=np.float64, copy=True)
-    # Rows sorted by action, so that each action's block is a contiguous slice.
-    order = np.argsort(actions, kind="stable")
-    starts = np.searchsorted(actions[order], np.arange(n_actions + 1))
-    phi_sorted = phi[order]
-    next_phi_t = np.ascontiguousarray(next_phi[order].T)  # (k, n)
-    rewards_sorted = np.asarray(rewards, dtype=np.float64)[order]
-    terminated_sorted = np.asarray(terminated, dtype=bool)[order]
-    blocks = [phi_sorted[starts[a] : starts[a + 1]] for a in range(n_actions)]  # X_a, (n_a, k)
-    # Cholesky factors of X_a^T X_a + ridge I, or None for an action never taken.
-    factors = [cho_factor(block.T @ block + ridge * np.eye(k)) if len(block) else None for block in blocks]
-    bounds = return_bounds(rewards_sorted, gamma)
-
-    def targets_of(theta: np.ndarray) -> np.ndarray:
-        next_q = (theta @ next_phi_t).T  # (n, n_actions)
-        return bellman_targets(rewards_sorted, next_q, terminated_sorted, gamma, bounds)
-
-    targets = targets_of(theta)
-    iterations = 0
-    for iterations in range(1, max_iterations + 1):  # noqa: B007 (the count is returned)
-        new_theta = theta.copy()
-        for a, (block, factor) in enumerate(zip(blocks, factors, strict=True)):
-            if factor is not None:
-                # eq. 4 for the block of action a
-                new_theta[a] = cho_solve(factor, block.T @ targets[starts[a] : starts[a + 1]])
-        change = np.abs(new_theta - theta).max()
-        theta = new_theta
-        targets = targets_of(theta)
-        if change <= tol * (1.0 + np.abs(theta).max()):
-            break
-    fitted = np.einsum("nk,nk->n", phi_sorted, theta[actions[order]])  # Q(s, a), (n,)
-    residual = float(np.sqrt(np.mean((targets - fitted) ** 2))) if n else 0.0
-    return LinearFQIResult(theta=theta, iterations=iterations, bellman_residual=residual)
+    solver = LinearFQISolver(np.shape(phi)[-1], n_actions, ridge=ridge)
+    solver.extend(phi, actions, next_phi, terminated)
+    return solver.fit(rewards, gamma=gamma, theta0=theta0, max_iterations=max_iterations, tol=tol)
 
 
 def make_q_network(input_dim: int, n_actions: int, hidden: tuple[int, ...] = (64, 64)) -> th.nn.Sequential:
-    """A small MLP Q(s, .) with one output per action."""
+    """
+    A small MLP Q(s, .) with one output per action (ReLU hidden layers).
+
+    :param input_dim: d, the width of the inputs
+    :param n_actions: number of actions (outputs)
+    :param hidden: hidden layer sizes
+    :return: the network, (n, d) -> (n, n_actions)
+    """
     layers: list[th.nn.Module] = []
     width = input_dim
     for size in hidden:
@@ -174,24 +353,34 @@ def fit_mlp_fqi(
     generator: th.Generator | None = None,
 ) -> MLPFQIResult:
     """
-    Fitted-Q Iteration with a network, trained in place: each iteration computes the targets
-    y = r + gamma max_a' Q_prev(s', a') with a frozen copy of the previous iterate, then regresses
-    Q(s, a) on y for a few epochs (MSE, Adam).
+    Fitted-Q Iteration with a network, trained in place: each iteration computes all the targets
+    y = r + gamma max_a' Q_prev(s', a') (eq. 1, bootstrap clipped as in ``bellman_targets``) with the
+    previous iterate, frozen under ``torch.no_grad``, then regresses Q(s, a) on y for a few epochs of
+    shuffled minibatches (MSE, Adam). Deterministic given the network's initial weights and ``generator``.
 
     :param inputs: network inputs of s, (n, d)
     :param actions: a, (n,)
     :param rewards: r, (n,)
     :param next_inputs: network inputs of s', (n, d)
-    :param terminated: s' is absorbing, (n,)
-    :param network: Q network, (d) -> (n_actions), updated in place
-    :param gamma: discount factor
-    :param iterations: fitted iterations
-    :param epochs_per_iteration: regression epochs per iteration
-    :param batch_size: minibatch size
-    :param learning_rate: Adam learning rate
+    :param terminated: s' is absorbing, (n,) bool; truncations (terminated False) bootstrap
+    :param network: Q network, (n, d) -> (n, n_actions), updated in place (e.g. ``make_q_network``)
+    :param gamma: discount factor in [0, 1)
+    :param iterations: fitted iterations (>= 0)
+    :param epochs_per_iteration: regression epochs per iteration (>= 1)
+    :param batch_size: minibatch size (>= 1)
+    :param learning_rate: Adam learning rate (> 0)
     :param generator: torch generator of the minibatch shuffling (global RNG if None)
     :return: iterations run and the final RMS Bellman residual
     """
+    if not 0 <= gamma < 1:
+        raise ValueError(f"gamma must be in [0, 1), got {gamma}")
+    if not (iterations >= 0 and epochs_per_iteration >= 1 and batch_size >= 1 and learning_rate > 0):
+        raise ValueError(
+            "iterations must be >= 0, epochs_per_iteration and batch_size >= 1, learning_rate > 0; got "
+            f"{iterations}, {epochs_per_iteration}, {batch_size}, {learning_rate}"
+        )
+    if not len(inputs):
+        return MLPFQIResult(iterations=0, bellman_residual=0.0)
     device = next(network.parameters()).device
     x = th.as_tensor(inputs, dtype=th.float32, device=device)
     x_next = th.as_tensor(next_inputs, dtype=th.float32, device=device)
@@ -201,22 +390,24 @@ def fit_mlp_fqi(
     low, high = return_bounds(np.asarray(rewards, dtype=np.float64), gamma)
     optimizer = th.optim.Adam(network.parameters(), lr=learning_rate)
 
-    def targets_of(q_network: th.nn.Module) -> th.Tensor:
+    def targets() -> th.Tensor:
         with th.no_grad():
-            # (n,), eq. 1, bootstrap clipped as in bellman_targets
-            return r + gamma * continues * q_network(x_next).max(dim=1).values.clamp(low, high)
+            # y (n,), eq. 1, bootstrap clipped as in bellman_targets
+            return r + gamma * continues * network(x_next).max(dim=1).values.clamp(low, high)
 
     for _ in range(iterations):
-        targets = targets_of(copy.deepcopy(network))
+        # All targets are computed before the iteration's regression: they are those of a frozen copy of
+        # the previous iterate, without copying the network.
+        iteration_targets = targets()
         for _ in range(epochs_per_iteration):
             order = th.randperm(len(x), generator=generator, device=device)
             for start in range(0, len(x), batch_size):
                 batch = order[start : start + batch_size]
                 predicted = network(x[batch]).gather(1, a[batch, None])[:, 0]  # Q(s, a), (b,)
-                loss = th.nn.functional.mse_loss(predicted, targets[batch])
+                loss = th.nn.functional.mse_loss(predicted, iteration_targets[batch])
                 optimizer.zero_grad()
                 loss.backward()
                 optimizer.step()
     with th.no_grad():
-        residual = (targets_of(network) - network(x).gather(1, a[:, None])[:, 0]).pow(2).mean().sqrt().item()
+        residual = (targets() - network(x).gather(1, a[:, None])[:, 0]).pow(2).mean().sqrt().item()
     return MLPFQIResult(iterations=iterations, bellman_residual=residual)

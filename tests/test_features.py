@@ -1,5 +1,8 @@
-"""RBF features and similarities (eq. 3, 6, 7, 11)."""
+"""RBF features and similarities (eq. 3, 6, 7, 11) against hand computations."""
 
+import pickle
+
+import gymnasium as gym
 import numpy as np
 import pytest
 
@@ -9,46 +12,106 @@ from sb3_trlsd.features import (
     gaussian_similarity,
     grid_centres,
     rbf_features,
+    squared_distances,
     state_action_features,
 )
 
+MAZE_GRID = RBFGrid(low=(0, 0), high=(5, 5), n_per_dim=5, sigma=0.2)
+
 
 def test_maze_grid_centres_are_the_papers_in_task_order():
-    """5x5 centres at (i - 0.5, j - 0.5), index 5 (i - 1) + (j - 1) as the maze's task index."""
+    """Centre s_ij = (i - 0.5, j - 0.5) sits at row 5 (i - 1) + (j - 1), the maze's task index (x-major)."""
     centres = grid_centres(np.zeros(2), np.full(2, 5.0), 5)
     assert centres.shape == (25, 2)
-    np.testing.assert_allclose(centres[0], [0.5, 0.5])
-    np.testing.assert_allclose(centres[5 * (2 - 1) + (4 - 1)], [1.5, 3.5])
+    for i in range(1, 6):
+        for j in range(1, 6):
+            np.testing.assert_allclose(centres[5 * (i - 1) + (j - 1)], [i - 0.5, j - 0.5])
+    np.testing.assert_array_equal(MAZE_GRID.centres, centres)
+
+
+def test_grid_centres_in_three_dimensions_vary_the_first_coordinate_slowest():
+    """On a 2 x 2 x 2 grid over [0, 2]^3 the rows are (0.5|1.5)^3 in lexicographic order."""
+    centres = grid_centres(np.zeros(3), np.full(3, 2.0), 2)
+    expected = [[x, y, z] for x in (0.5, 1.5) for y in (0.5, 1.5) for z in (0.5, 1.5)]
+    np.testing.assert_allclose(centres, expected)
 
 
 def test_rbf_grid_equals_eq_11_and_is_one_at_its_centres():
     """The separable grid evaluation equals exp(-||s - s_ij||^2 / 2 sigma^2) for every centre."""
-    grid = RBFGrid(low=(0, 0), high=(5, 5), n_per_dim=5, sigma=0.2)
     states = np.random.default_rng(0).uniform(0, 5, size=(200, 2))
-    direct = np.exp(-((states[:, None, :] - grid.centres[None]) ** 2).sum(-1) / (2 * 0.2**2))
-    np.testing.assert_allclose(grid(states), direct, rtol=1e-12, atol=1e-300)
-    np.testing.assert_allclose(rbf_features(states, grid.centres, 0.2), direct, rtol=1e-10, atol=1e-300)
-    np.testing.assert_allclose(np.diag(grid(grid.centres)), 1.0)
+    direct = np.exp(-((states[:, None, :] - MAZE_GRID.centres[None]) ** 2).sum(-1) / (2 * 0.2**2))
+    assert MAZE_GRID(states).shape == (200, MAZE_GRID.n_features) == (200, 25)
+    np.testing.assert_allclose(MAZE_GRID(states), direct, rtol=1e-12, atol=1e-300)
+    np.testing.assert_allclose(rbf_features(states, MAZE_GRID.centres, 0.2), direct, rtol=1e-10, atol=1e-300)
+    np.testing.assert_allclose(np.diag(MAZE_GRID(MAZE_GRID.centres)), 1.0)
 
 
 def test_state_action_features_are_eq_3_blocks():
     """Phi(s, a) holds Phi(s) in block a and zeros elsewhere."""
     phi = np.arange(6.0).reshape(2, 3) + 1
     blocks = state_action_features(phi, np.array([2, 0]), n_actions=4)
+    assert blocks.shape == (2, 12)
     np.testing.assert_array_equal(blocks[0], [0, 0, 0, 0, 0, 0, 1, 2, 3, 0, 0, 0])
     np.testing.assert_array_equal(blocks[1], [4, 5, 6] + [0] * 9)
 
 
 def test_similarities_equal_eq_6_and_eq_7_by_hand():
-    """S_S on states and S_Phi on features, against a hand computation."""
-    a, b = np.array([[0.0, 0.0]]), np.array([[0.3, 0.4]])
-    assert gaussian_similarity(a, b, 0.5)[0, 0] == pytest.approx(np.exp(-0.25 / (2 * 0.25)))
-    grid = RBFGrid(low=(0, 0), high=(5, 5))
-    distance = np.sum((grid(a) - grid(b)) ** 2)
-    assert feature_similarity(grid(a), grid(b), 0.2)[0, 0] == pytest.approx(np.exp(-distance / 0.08))
+    """S_S on states and S_Phi on features, pair by pair against a hand computation."""
+    rng = np.random.default_rng(1)
+    a, b = rng.uniform(0, 5, size=(4, 2)), rng.uniform(0, 5, size=(3, 2))
+    s_s, s_phi = gaussian_similarity(a, b, 0.7), feature_similarity(MAZE_GRID(a), MAZE_GRID(b), 0.2)
+    assert s_s.shape == s_phi.shape == (4, 3)
+    for i in range(4):
+        for j in range(3):
+            assert s_s[i, j] == pytest.approx(np.exp(-np.sum((a[i] - b[j]) ** 2) / (2 * 0.7**2)), rel=1e-12)
+            distance = np.sum((MAZE_GRID(a[i : i + 1]) - MAZE_GRID(b[j : j + 1])) ** 2)
+            assert s_phi[i, j] == pytest.approx(np.exp(-distance / 0.08), rel=1e-10)
 
 
-def test_rbf_grid_refuses_a_non_positive_sigma():
-    """sigma <= 0 is named in the error."""
-    with pytest.raises(ValueError, match="sigma"):
-        RBFGrid(low=(0, 0), high=(5, 5), sigma=0.0)
+def test_squared_distances_stay_accurate_far_from_the_origin():
+    """
+    Points near (1e8, 1e8), 0.1 apart: the raw expansion |a|^2 + |b|^2 - 2 a.b would lose every digit (its
+    terms are ~1e16, rounded to ~2); centring keeps the error at the inputs' own rounding (~1e-8 * 0.1).
+    """
+    rng = np.random.default_rng(2)
+    a = 1e8 + rng.uniform(0, 0.1, size=(5, 2))
+    b = 1e8 + rng.uniform(0, 0.1, size=(6, 2))
+    direct = ((a[:, None, :] - b[None]) ** 2).sum(-1)
+    np.testing.assert_allclose(squared_distances(a, b), direct, atol=1e-8)
+    assert np.all(squared_distances(a, a).diagonal() >= 0)
+
+
+def test_overflowing_distances_give_zero_similarity_not_nan():
+    """States beyond ~1e154 overflow the squares: they are infinitely far, similarity 0 (and no warning)."""
+    huge = np.array([[1e200, -1e200], [3e300, 1.0]])
+    box = np.array([[1.0, 1.0], [4.0, 2.0]])
+    for a, b in ((huge, box), (box, huge), (huge, huge[::-1])):
+        similarity = gaussian_similarity(a, b, 0.2)
+        assert np.all(np.isfinite(similarity)) and np.all(similarity == 0)
+    assert np.all(MAZE_GRID(huge) == 0)
+
+
+def test_rbf_grid_for_box_and_pickle():
+    """The grid built from the maze's Box is the paper's; it survives pickling (models are saved)."""
+    grid = RBFGrid.for_box(gym.spaces.Box(0.0, 5.0, shape=(2,)), n_per_dim=5, sigma=0.2)
+    assert grid == MAZE_GRID
+    restored = pickle.loads(pickle.dumps(grid))
+    np.testing.assert_array_equal(restored.centres, grid.centres)
+    states = np.array([[0.3, 4.1]])
+    np.testing.assert_array_equal(restored(states), grid(states))
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "argument"),
+    [
+        ({"sigma": 0.0}, "sigma"),
+        ({"sigma": -1.0}, "sigma"),
+        ({"n_per_dim": 0}, "n_per_dim"),
+        ({"low": (5, 5), "high": (0, 0)}, "low"),
+    ],
+    ids=["zero-sigma", "negative-sigma", "no-centres", "inverted-box"],
+)
+def test_rbf_grid_refuses_bad_settings_by_name(kwargs, argument):
+    """Bad grid settings raise a ValueError naming the argument."""
+    with pytest.raises(ValueError, match=argument):
+        RBFGrid(**{"low": (0, 0), "high": (5, 5), **kwargs})
