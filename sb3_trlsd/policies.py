@@ -44,6 +44,8 @@ class TaskQPolicy(BasePolicy):
     :param lr_schedule: learning-rate schedule (used by the MLP's regression steps only)
     """
 
+    default_max_iterations: int  # fitted iterations of a refit when TRLSD's fqi_max_iterations is None
+
     def __init__(self, observation_space: spaces.Space, action_space: spaces.Space, lr_schedule: Schedule):
         super().__init__(observation_space, action_space)
         if not isinstance(action_space, spaces.Discrete):
@@ -55,6 +57,9 @@ class TaskQPolicy(BasePolicy):
         self.lr_schedule = lr_schedule
         # Which tasks have had their Q fitted at least once; a buffer so that it is saved with the weights.
         self.register_buffer("fitted", th.zeros(self.n_tasks, dtype=th.bool))
+
+    def _get_constructor_parameters(self) -> dict[str, Any]:
+        return {**super()._get_constructor_parameters(), "lr_schedule": self.lr_schedule}
 
     def split_observation(self, observation: PyTorchObs) -> tuple[np.ndarray, np.ndarray]:
         """States (n, d) as float64 and tasks (n,) of a batched observation tensor."""
@@ -168,7 +173,6 @@ class LinearPolicy(TaskQPolicy):
     def _get_constructor_parameters(self) -> dict[str, Any]:
         data = super()._get_constructor_parameters()
         data.update(
-            lr_schedule=self.lr_schedule,
             rbf_per_dim=self.rbf_per_dim,
             rbf_sigma=self.rbf_sigma,
             fqi_ridge=self.fqi_ridge,
@@ -238,7 +242,6 @@ class MlpPolicy(TaskQPolicy):
     def _get_constructor_parameters(self) -> dict[str, Any]:
         data = super()._get_constructor_parameters()
         data.update(
-            lr_schedule=self.lr_schedule,
             net_arch=self.net_arch,
             epochs_per_iteration=self.epochs_per_iteration,
             batch_size=self.batch_size,

@@ -14,7 +14,7 @@ from gymnasium import spaces
 from stable_baselines3.common.noise import ActionNoise
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.policies import BasePolicy
-from stable_baselines3.common.type_aliases import GymEnv, Schedule
+from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
 
 from sb3_trlsd.buffers import SharedDynamicsReplayBuffer, state_space_of
 from sb3_trlsd.data import Transitions
@@ -69,7 +69,7 @@ class TRLSD(OffPolicyAlgorithm):
     :param buffer_size: size of the shared replay buffer
     :param learning_starts: steps of uniformly random actions before the first refit
     :param train_freq: refit the tasks that are due every ``train_freq`` steps (or ``(n, "episode")``)
-    :param gradient_steps: refits per training round when due (0 disables training)
+    :param gradient_steps: 0 disables the refits; any positive value refits each due task once per round
     :param replay_buffer_class: a ``SharedDynamicsReplayBuffer`` subclass (default: that class)
     :param replay_buffer_kwargs: keyword arguments of the replay buffer
     :param policy_kwargs: keyword arguments of the policy
@@ -337,7 +337,7 @@ class TRLSD(OffPolicyAlgorithm):
     def learn(
         self: SelfTRLSD,
         total_timesteps: int,
-        callback=None,
+        callback: MaybeCallback = None,
         log_interval: int = 4,
         tb_log_name: str = "TRLSD",
         reset_num_timesteps: bool = True,
