@@ -99,14 +99,14 @@ def bellman_targets(
     return rewards + gamma * np.where(terminated, 0.0, bootstrap)  # eq. 1
 
 
-class _ActionBlock(NamedTuple):
-    """The transitions of one action, as a fit uses them."""
+class _StackedTransitions(NamedTuple):
+    """The stored transitions sorted by action, as the iterations use them (built once per ``extend``)."""
 
-    phi: np.ndarray  # X_a, (n_a, k)
-    next_phi_t: np.ndarray  # Phi(s')^T, (k, n_a)
-    terminated: np.ndarray  # (n_a,) bool
-    rows: np.ndarray  # their rows in the order of extend calls, (n_a,) int
-    inverse: np.ndarray  # (X_a^T X_a + ridge I)^-1, (k, k)
+    next_phi_t: np.ndarray  # Phi(s')^T of every transition, columns grouped by action, (k, n)
+    terminated: np.ndarray  # (n,) bool, same order
+    order: np.ndarray  # row of each column in the order of extend calls, (n,) int
+    # Per action with samples: (a, its columns as a slice, (X_a^T X_a + ridge I)^-1 X_a^T of shape (k, n_a))
+    projections: list[tuple[int, slice, np.ndarray]]
 
 
 class LinearFQISolver:
@@ -141,7 +141,7 @@ class LinearFQISolver:
         # Row of each transition in the order of extend calls, as float64 (exact below 2^53).
         self._rows = [GrowableArray(1) for _ in range(n_actions)]
         self._gram = np.tile(self.ridge * np.eye(k), (n_actions, 1, 1))  # X_a^T X_a + ridge I, (A, k, k)
-        self._blocks: dict[int, _ActionBlock] | None = None  # built by _action_blocks, reset by extend
+        self._stacked: _StackedTransitions | None = None  # built by _stack, reset by extend
         self.n_transitions = 0
 
     def __repr__(self) -> str:
@@ -186,26 +186,34 @@ class LinearFQISolver:
             self._next_phi[a].append(next_phi[rows])
             self._terminated[a].append(terminated[rows, None])
             self._rows[a].append(self.n_transitions + rows[:, None])
-        self._blocks = None
+        self._stacked = None
         self.n_transitions += n
 
-    def _action_blocks(self) -> dict[int, _ActionBlock]:
-        """The data of each action with samples, arranged for the iterations, built once per ``extend``."""
-        if self._blocks is None:
-            identity = np.eye(self.n_features)
-            self._blocks = {
-                a: _ActionBlock(
-                    phi=self._phi[a].view(),
-                    # Contiguous (k, n_a): theta @ next_phi_t is twice as fast as with a transposed view.
-                    next_phi_t=np.ascontiguousarray(self._next_phi[a].view().T),
-                    terminated=self._terminated[a].view()[:, 0] > 0,
-                    rows=self._rows[a].view()[:, 0].astype(np.int64),
-                    inverse=cho_solve(cho_factor(self._gram[a]), identity),
+    def _stack(self) -> _StackedTransitions:
+        """
+        One (k, n) array of next features for all actions, so that an iteration computes Q(s', .) with one
+        product, and each action's ridge projection (k, n_a) multiplied out, so that eq. 4 is one more.
+        """
+        if self._stacked is None:
+            actions = [a for a in range(self.n_actions) if len(self._phi[a])]
+            projections, start = [], 0
+            for a in actions:
+                phi = self._phi[a].view()
+                # (X_a^T X_a + ridge I)^-1 X_a^T, (k, n_a): the Gram's Cholesky factor solves for all rows.
+                projections.append(
+                    (a, slice(start, start + len(phi)), cho_solve(cho_factor(self._gram[a]), phi.T))
                 )
-                for a in range(self.n_actions)
-                if len(self._phi[a])
-            }
-        return self._blocks
+                start += len(phi)
+            self._stacked = _StackedTransitions(
+                # Contiguous (k, n): theta @ next_phi_t is twice as fast as with a transposed view.
+                next_phi_t=np.ascontiguousarray(
+                    np.concatenate([self._next_phi[a].view() for a in actions]).T
+                ),
+                terminated=np.concatenate([self._terminated[a].view()[:, 0] > 0 for a in actions]),
+                order=np.concatenate([self._rows[a].view()[:, 0] for a in actions]).astype(np.int64),
+                projections=projections,
+            )
+        return self._stacked
 
     def fit(
         self,
@@ -243,32 +251,30 @@ class LinearFQISolver:
         if not self.n_transitions:
             return LinearFQIResult(theta=theta, iterations=0, bellman_residual=0.0)
 
-        blocks = self._action_blocks()
-        block_rewards = {a: rewards[block.rows] for a, block in blocks.items()}  # r of block a, (n_a,)
+        stacked = self._stack()
+        stacked_rewards = rewards[stacked.order]  # r in the stacked order, (n,)
         bounds = return_bounds(rewards, gamma)
 
-        def targets_of(theta: np.ndarray) -> dict[int, np.ndarray]:
-            # y_a = r + gamma max_a' theta_a' . Phi(s') (eq. 4), next Q as the transpose of (A, n_a)
-            return {
-                a: bellman_targets(
-                    block_rewards[a], (theta @ block.next_phi_t).T, block.terminated, gamma, bounds
-                )
-                for a, block in blocks.items()
-            }
+        def targets_of(theta: np.ndarray) -> np.ndarray:
+            # y = r + gamma max_a' theta_a' . Phi(s') (eq. 4), Q(s', .) as the transpose of (A, n)
+            return bellman_targets(
+                stacked_rewards, (theta @ stacked.next_phi_t).T, stacked.terminated, gamma, bounds
+            )
 
         targets = targets_of(theta)
         iterations = 0
         for iterations in range(1, max_iterations + 1):  # noqa: B007 (the count is returned)
             new_theta = theta.copy()
-            for a, block in blocks.items():
-                new_theta[a] = block.inverse @ (block.phi.T @ targets[a])  # eq. 4, block a
+            for a, columns, projection in stacked.projections:
+                new_theta[a] = projection @ targets[columns]  # eq. 4, block a
             change = np.abs(new_theta - theta).max()
             theta = new_theta
             targets = targets_of(theta)
             if change <= tol * (1.0 + np.abs(theta).max()):
                 break
         squared_error = sum(
-            float(np.sum((targets[a] - block.phi @ theta[a]) ** 2)) for a, block in blocks.items()
+            float(np.sum((targets[columns] - self._phi[a].view() @ theta[a]) ** 2))
+            for a, columns, _ in stacked.projections
         )
         residual = float(np.sqrt(squared_error / self.n_transitions))
         return LinearFQIResult(theta=theta, iterations=iterations, bellman_residual=residual)

@@ -18,11 +18,11 @@ from gymnasium import spaces
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
 
-from sb3_trlsd.arrays import PrefixFeatureCache
+from sb3_trlsd.arrays import GrowableArray
 from sb3_trlsd.buffers import state_space_of
 from sb3_trlsd.data import Transitions
 from sb3_trlsd.features import RBFGrid
-from sb3_trlsd.fqi import fit_linear_fqi, fit_mlp_fqi, linear_q_values, make_q_network
+from sb3_trlsd.fqi import LinearFQISolver, fit_mlp_fqi, linear_q_values, make_q_network
 
 __all__ = ["FitStats", "LinearPolicy", "MlpPolicy", "TaskQPolicy"]
 
@@ -163,9 +163,11 @@ class LinearPolicy(TaskQPolicy):
         self.rbf_sigma = rbf_sigma
         self.fqi_ridge = fqi_ridge
         self.features = RBFGrid.for_box(self.state_space, n_per_dim=rbf_per_dim, sigma=rbf_sigma)
-        # The relabelled set only grows between refits: the features of its old rows are kept.
-        self._start_features = PrefixFeatureCache(self.features)
-        self._next_features = PrefixFeatureCache(self.features)
+        # The relabelled set only grows between refits (and is the same for every task): one solver keeps
+        # the features and per-action Gram factorisations of the rows it has seen, and ``_held`` those rows
+        # (s, a, s', terminated) to recognise them.
+        self._solver = LinearFQISolver(self.features.n_features, self.n_actions, ridge=fqi_ridge)
+        self._held = GrowableArray(2 * self.state_space.shape[0] + 2)
         self.register_buffer(
             "theta", th.zeros(self.n_tasks, self.n_actions, self.features.n_features, dtype=th.float64)
         )
@@ -182,19 +184,38 @@ class LinearPolicy(TaskQPolicy):
     def _task_q_values(self, states: np.ndarray, task: int) -> np.ndarray:
         return linear_q_values(self.features(states), self.theta[task].cpu().numpy())
 
+    def solver_for(self, transitions: Transitions) -> LinearFQISolver:
+        """
+        The FQI solver holding exactly these transitions, extended with their new rows when they extend
+        the rows it holds (a replay buffer that has not wrapped around), rebuilt otherwise.
+
+        :param transitions: the relabelled transition set (its rewards are not used here)
+        :return: the solver, whose ``fit`` takes the rewards of these transitions in their order
+        """
+        rows = np.column_stack(
+            [transitions.states, transitions.actions, transitions.next_states, transitions.terminations]
+        ).astype(np.float64)
+        held = len(self._held)
+        if len(rows) < held or not np.array_equal(rows[:held], self._held.view()):
+            self._solver = LinearFQISolver(self.features.n_features, self.n_actions, ridge=self.fqi_ridge)
+            self._held, held = GrowableArray(rows.shape[1]), 0
+        if len(rows) > held:
+            self._solver.extend(
+                self.features(transitions.states[held:]),
+                transitions.actions[held:],
+                self.features(transitions.next_states[held:]),
+                transitions.terminations[held:],
+            )
+            self._held.append(rows[held:])
+        return self._solver
+
     def _fit(
         self, task: int, transitions: Transitions, gamma: float, max_iterations: int, tol: float
     ) -> FitStats:
-        result = fit_linear_fqi(
-            self._start_features(transitions.states),
-            transitions.actions,
+        result = self.solver_for(transitions).fit(
             transitions.rewards,
-            self._next_features(transitions.next_states),
-            transitions.terminations,
-            n_actions=self.n_actions,
             gamma=gamma,
             theta0=self.theta[task].cpu().numpy(),
-            ridge=self.fqi_ridge,
             max_iterations=max_iterations,
             tol=tol,
         )
