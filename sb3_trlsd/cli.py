@@ -11,6 +11,7 @@ import gymnasium as gym
 import numpy as np
 
 import envs
+from sb3_trlsd.experiments import FIGURES
 
 __all__ = ["main"]
 
@@ -48,6 +49,42 @@ def render_command(args: argparse.Namespace) -> int:
     return 0
 
 
+def positive_int(text: str) -> int:
+    """An integer >= 1, for ``--runs`` and ``--workers``."""
+    try:
+        value = int(text)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}") from error
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {value}")
+    return value
+
+
+def writable_directory(text: str) -> str:
+    """A directory that exists or can be created, and can be written to."""
+    try:
+        os.makedirs(text, exist_ok=True)
+    except OSError as error:
+        raise argparse.ArgumentTypeError(f"cannot create the output directory {text!r}: {error}") from error
+    if not os.access(text, os.W_OK | os.X_OK):
+        raise argparse.ArgumentTypeError(f"cannot write to the output directory {text!r}")
+    return text
+
+
+def reproduce_command(args: argparse.Namespace) -> int:
+    """Run the experiments of one figure (or all) and write their CSV, PNG and JSON files."""
+    from sb3_trlsd.experiments import reproduce
+
+    figures = list(FIGURES) if args.figure == "all" else [args.figure]
+    for figure in figures:
+        data = reproduce(figure, args.out, runs=args.runs, seed=args.seed, workers=args.workers)
+        files = ", ".join(
+            os.path.join(os.path.abspath(args.out), f"{figure}.{ext}") for ext in ("png", "csv", "json")
+        )
+        print(f"{figure} done in {data['wall_time_seconds']:.0f} s: {files}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="sb3-trlsd",
@@ -60,6 +97,24 @@ def build_parser() -> argparse.ArgumentParser:
     render.add_argument("--steps", type=int, default=30, help="random steps of the trajectory drawn in blue")
     render.add_argument("--seed", type=int, default=0, help="seed of the env and of the random policy")
     render.set_defaults(run=render_command)
+
+    reproduce = commands.add_parser(
+        "reproduce",
+        help="reproduce a figure of the paper's section 4 (CSV, PNG and JSON)",
+        description="Reproduce the paper's experiments; without --runs, at the paper's sizes.",
+    )
+    reproduce.add_argument("figure", choices=[*FIGURES, "all"], help="which figure")
+    reproduce.add_argument(
+        "--runs", type=positive_int, default=None, help="runs per method (default: the paper's)"
+    )
+    reproduce.add_argument(
+        "--out", type=writable_directory, default="results", help="output directory (default: %(default)s)"
+    )
+    reproduce.add_argument("--seed", type=int, default=0, help="seed of the first run; run r uses seed + r")
+    reproduce.add_argument(
+        "--workers", type=positive_int, default=os.cpu_count() or 1, help="processes (default: %(default)s)"
+    )
+    reproduce.set_defaults(run=reproduce_command)
     return parser
 
 

@@ -105,8 +105,8 @@ class _StackedTransitions(NamedTuple):
     next_phi_t: np.ndarray  # Phi(s')^T of every transition, columns grouped by action, (k, n)
     terminated: np.ndarray  # (n,) bool, same order
     order: np.ndarray  # row of each column in the order of extend calls, (n,) int
-    # Per action with samples: (a, its columns as a slice, (X_a^T X_a + ridge I)^-1 X_a^T of shape (k, n_a))
-    projections: list[tuple[int, slice, np.ndarray]]
+    # Per action with samples: (a, its columns as a slice, X_a (n_a, k), (X_a^T X_a + ridge I)^-1 (k, k))
+    blocks: list[tuple[int, slice, np.ndarray, np.ndarray]]
 
 
 class LinearFQISolver:
@@ -192,17 +192,15 @@ class LinearFQISolver:
     def _stack(self) -> _StackedTransitions:
         """
         One (k, n) array of next features for all actions, so that an iteration computes Q(s', .) with one
-        product, and each action's ridge projection (k, n_a) multiplied out, so that eq. 4 is one more.
+        product, and each action's inverted Gram matrix.
         """
         if self._stacked is None:
             actions = [a for a in range(self.n_actions) if len(self._phi[a])]
-            projections, start = [], 0
+            blocks, start = [], 0
             for a in actions:
                 phi = self._phi[a].view()
-                # (X_a^T X_a + ridge I)^-1 X_a^T, (k, n_a): the Gram's Cholesky factor solves for all rows.
-                projections.append(
-                    (a, slice(start, start + len(phi)), cho_solve(cho_factor(self._gram[a]), phi.T))
-                )
+                inverse = cho_solve(cho_factor(self._gram[a]), np.eye(self.n_features))
+                blocks.append((a, slice(start, start + len(phi)), phi, inverse))
                 start += len(phi)
             self._stacked = _StackedTransitions(
                 # Contiguous (k, n): theta @ next_phi_t is twice as fast as with a transposed view.
@@ -211,7 +209,7 @@ class LinearFQISolver:
                 ),
                 terminated=np.concatenate([self._terminated[a].view()[:, 0] > 0 for a in actions]),
                 order=np.concatenate([self._rows[a].view()[:, 0] for a in actions]).astype(np.int64),
-                projections=projections,
+                blocks=blocks,
             )
         return self._stacked
 
@@ -265,16 +263,15 @@ class LinearFQISolver:
         iterations = 0
         for iterations in range(1, max_iterations + 1):  # noqa: B007 (the count is returned)
             new_theta = theta.copy()
-            for a, columns, projection in stacked.projections:
-                new_theta[a] = projection @ targets[columns]  # eq. 4, block a
+            for a, columns, phi, inverse in stacked.blocks:
+                new_theta[a] = inverse @ (phi.T @ targets[columns])  # eq. 4, block a
             change = np.abs(new_theta - theta).max()
             theta = new_theta
             targets = targets_of(theta)
             if change <= tol * (1.0 + np.abs(theta).max()):
                 break
         squared_error = sum(
-            float(np.sum((targets[columns] - self._phi[a].view() @ theta[a]) ** 2))
-            for a, columns, _ in stacked.projections
+            float(np.sum((targets[columns] - phi @ theta[a]) ** 2)) for a, columns, phi, _ in stacked.blocks
         )
         residual = float(np.sqrt(squared_error / self.n_transitions))
         return LinearFQIResult(theta=theta, iterations=iterations, bellman_residual=residual)

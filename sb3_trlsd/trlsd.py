@@ -288,17 +288,79 @@ class TRLSD(OffPolicyAlgorithm):
         for state, reward, task in zip(
             buffer.observations[row], buffer.rewards[row], buffer.tasks[row], strict=True
         ):
-            state = state.astype(np.float64)[None]
-            head = self.reward_head_of(task)
-            head.update(state, np.array([reward], dtype=np.float64))
-            uncertainty_at_refit = self._uncertainty_at_refit.get(int(task))
-            if uncertainty_at_refit is not None:
-                # Section 3: refit once the CI at an encountered state has been divided by update_ratio.
-                # The ratio is taken on the kappa-free uncertainty, so that kappa = 0 triggers the same way.
-                then, now = uncertainty_at_refit(state)[0], head.uncertainty(state)[0]
-                if then > 0 and then >= self.update_ratio * now:
-                    self._due_tasks.add(int(task))
+            self._observe_reward(state, reward, int(task))
+
+    def _observe_reward(self, state: np.ndarray, reward: float, task: int) -> None:
+        """Update the reward head of ``task`` with one online sample and mark the task due if it triggers."""
+        state = np.asarray(state, dtype=np.float64).reshape(1, -1)
+        head = self.reward_head_of(task)
+        head.update(state, np.array([reward], dtype=np.float64))
+        uncertainty_at_refit = self._uncertainty_at_refit.get(task)
+        if uncertainty_at_refit is not None:
+            # Section 3: refit once the CI at an encountered state has been divided by update_ratio.
+            # The ratio is taken on the kappa-free uncertainty, so that kappa = 0 triggers the same way.
+            then, now = uncertainty_at_refit(state)[0], head.uncertainty(state)[0]
+            if then > 0 and then >= self.update_ratio * now:
+                self._due_tasks.add(task)
+        if getattr(self, "_logger", None) is not None:
             self.logger.record("reward/target_samples", head.n_samples)
+
+    def act(self, obs: dict[str, np.ndarray] | np.ndarray) -> int:
+        """
+        The action ``learn`` takes from one observation: the task's Q is fitted first if it never was, then
+        the greedy action. With ``add_online_transition``, it drives TRLSD from a loop of one's own (the
+        experiments' fast path) with the same result as ``learn``, without SB3's rollout machinery.
+
+        :param obs: one observation of the env (not batched)
+        :return: the action
+        """
+        state, task = (obs["state"], int(obs["task"])) if isinstance(obs, dict) else (obs, 0)
+        if not self.policy.fitted[task]:
+            self.update_policy(task)
+        return int(self.policy.q_values(np.asarray(state)[None], task)[0].argmax())
+
+    def add_online_transition(
+        self,
+        obs: dict[str, np.ndarray] | np.ndarray,
+        action: int,
+        reward: float,
+        next_obs: dict[str, np.ndarray] | np.ndarray,
+        terminated: bool,
+        truncated: bool,
+    ) -> None:
+        """
+        Do with one online transition what ``learn`` does after an env step: store it in the shared buffer
+        (with the precision SB3 stores it), feed it to its task's reward head, and refit the tasks whose
+        trigger fired. See ``act``.
+
+        :param obs: observation before the step (not batched)
+        :param action: action taken
+        :param reward: reward received
+        :param next_obs: observation after the step (before any reset)
+        :param terminated: the step reached an absorbing state
+        :param truncated: the trajectory was cut (no absorbing state: FQI bootstraps through it)
+        """
+        batched = (
+            {key: np.asarray(value)[None] for key, value in obs.items()}
+            if isinstance(obs, dict)
+            else obs[None]
+        )
+        next_batched = (
+            {key: np.asarray(value)[None] for key, value in next_obs.items()}
+            if isinstance(next_obs, dict)
+            else next_obs[None]
+        )
+        self.replay_buffer.add(
+            batched,
+            next_batched,
+            np.array([[action]]),
+            np.array([reward]),
+            np.array([terminated or truncated]),
+            [{"TimeLimit.truncated": truncated and not terminated}],
+        )
+        self.num_timesteps += 1
+        self._on_step()
+        self.train(gradient_steps=1, batch_size=0)
 
     def train(self, gradient_steps: int, batch_size: int) -> None:
         """Refit the Q-function of every task whose trigger fired since the last round."""

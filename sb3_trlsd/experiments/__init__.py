@@ -1,0 +1,49 @@
+"""
+Reproductions of the paper's experiments (section 4, Figures 1-8), one module per experiment, and the
+registry the ``sb3-trlsd reproduce`` command runs them from. Each figure writes ``figN.csv`` (curves),
+``figN.png`` and ``figN.json`` (aggregates, policy updates, wall time, parameters, seed, version).
+"""
+
+from __future__ import annotations
+
+import importlib
+from pathlib import Path
+
+__all__ = ["FIGURES", "reproduce"]
+
+# Figure -> (module of sb3_trlsd.experiments, function(out, runs, seed, workers) -> summary). Imported on
+# use, so that listing the figures (the command line's help) does not load torch and SB3.
+FIGURES: dict[str, tuple[str, str]] = {
+    "fig1": ("known_reward", "reproduce"),
+    "fig2": ("trajectories", "reproduce_fig2"),
+    "fig3": ("trajectories", "reproduce_fig3"),
+    "fig4": ("trajectories", "reproduce_fig4"),
+    "fig5": ("transfer", "reproduce"),
+    "fig6": ("corners", "reproduce"),
+    "fig7": ("sensitivity", "reproduce"),
+    "fig8": ("multitask", "reproduce"),
+}
+
+
+def reproduce(figure: str, out: str | Path, runs: int | None = None, seed: int = 0, workers: int = 1) -> dict:
+    """
+    Run one figure's experiment and write its CSV, PNG and JSON to ``out``.
+
+    :param figure: ``"fig1"`` .. ``"fig8"``
+    :param out: output directory (created if needed)
+    :param runs: runs per method (None: the paper's size)
+    :param seed: seed of the first run; run r uses ``seed + r``
+    :param workers: processes the runs are spread over
+    :return: the figure's JSON summary
+    """
+    if figure not in FIGURES:
+        raise ValueError(f"figure must be one of {', '.join(FIGURES)}, got {figure!r}")
+    if runs is not None and runs < 1:
+        raise ValueError(f"runs must be >= 1, got {runs}")
+    if workers < 1:
+        raise ValueError(f"workers must be >= 1, got {workers}")
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    module, function = FIGURES[figure]
+    run = getattr(importlib.import_module(f"sb3_trlsd.experiments.{module}"), function)
+    return run(out, runs, seed, workers)

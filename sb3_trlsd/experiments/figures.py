@@ -1,0 +1,115 @@
+"""Drawing and writing shared by the figures: curves of transfer runs, and maze snapshots."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from envs import task_cell
+from envs.dynamics import DEFAULT_WALLS
+from sb3_trlsd.experiments.reporting import (
+    mean_and_standard_error,
+    plot_curves,
+    summary,
+    window_means,
+    write_curves_csv,
+    write_json,
+)
+from sb3_trlsd.experiments.runner import Method, RunRecord, Snapshot
+
+__all__ = ["draw_snapshot", "new_figure", "save_figure", "update_counts", "write_transfer_figure"]
+
+CURVE_SMOOTHING = 20  # transitions of the moving average drawn (the CSV keeps every transition)
+
+
+def new_figure(n_panels: int, width: float = 5.5, height: float = 4.2) -> tuple[Any, list[Any]]:
+    """A matplotlib figure with ``n_panels`` side by side (the Agg backend: no display needed)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    figure = Figure(figsize=(width * n_panels, height), dpi=110)
+    FigureCanvasAgg(figure)
+    return figure, [figure.add_subplot(1, n_panels, i + 1) for i in range(n_panels)]
+
+
+def save_figure(figure: Any, path: Path, title: str) -> None:
+    """Title the figure and write it as a PNG."""
+    figure.suptitle(title)
+    figure.tight_layout()
+    figure.savefig(path)
+
+
+def draw_snapshot(ax: Any, snapshot: Snapshot, task: int, title: str) -> None:
+    """A snapshot in the style of the paper's Figures 1-4: R^ in green, trajectory in blue, policy in red."""
+    from envs.rendering import draw_maze
+
+    draw_maze(
+        ax,
+        DEFAULT_WALLS,
+        target_cells=[task_cell(task)],
+        trajectory=snapshot.trajectory,
+        state_values=snapshot.reward_estimate,
+        policy=snapshot.policy,
+        title=title,
+    )
+
+
+def update_counts(records: Sequence[RunRecord]) -> dict[str, float]:
+    """Mean and standard error of the policy updates per run."""
+    mean, se = mean_and_standard_error(np.array([[record.policy_updates] for record in records]))
+    return {"mean": float(mean[0]), "se": float(se[0])}
+
+
+def write_transfer_figure(
+    out: Path,
+    name: str,
+    title: str,
+    methods: Sequence[Method],
+    records: Mapping[str, Sequence[RunRecord]],
+    windows: Sequence[tuple[int, int]],
+    parameters: Mapping[str, Any],
+    seed: int,
+    started: float,
+    panels: Sequence[tuple[str, Sequence[str]]] | None = None,
+    picture: tuple[Snapshot, int, str] | None = None,
+) -> dict:
+    """
+    Write ``name``.csv (per-transition curves), ``name``.png (the curves, one panel per group of methods)
+    and ``name``.json (reward over ``windows``, policy updates, seconds per run) for transfer runs.
+
+    :param panels: (panel title, method labels) of each panel; one panel with every method if None
+    :param picture: (snapshot, task, title) drawn in a first panel, if given
+    :return: the JSON summary
+    """
+    curves = {label: np.stack([record.rewards for record in runs]) for label, runs in records.items()}
+    write_curves_csv(out / f"{name}.csv", "transition", curves)
+    panels = panels or [("", list(curves))]
+    figure, axes = new_figure(len(panels) + (picture is not None))
+    if picture is not None:
+        draw_snapshot(axes.pop(0), *picture)
+    for ax, (panel_title, labels) in zip(axes, panels, strict=True):
+        plot_curves(ax, {label: curves[label] for label in labels}, smooth=CURVE_SMOOTHING)
+        ax.set_title(panel_title)
+    save_figure(figure, out / f"{name}.png", title)
+    results = {
+        label: {
+            "reward": window_means(curves[label], windows),
+            "policy_updates": update_counts(runs),
+            "seconds_per_run": float(np.mean([record.seconds for record in runs])),
+            "runs": len(runs),
+        }
+        for label, runs in records.items()
+    }
+    data = summary(
+        name,
+        {**parameters, "methods": [method.parameters() for method in methods]},
+        seed,
+        time.perf_counter() - started,
+        results=results,
+    )
+    write_json(out / f"{name}.json", data)
+    return data

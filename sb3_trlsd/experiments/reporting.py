@@ -1,0 +1,130 @@
+"""What every figure writes: a CSV of its curves, a PNG in the paper's style and a JSON summary."""
+
+from __future__ import annotations
+
+import csv
+import json
+import platform
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from sb3_trlsd.version import __version__
+
+__all__ = [
+    "mean_and_standard_error",
+    "moving_average",
+    "plot_curves",
+    "summary",
+    "window_means",
+    "write_curves_csv",
+    "write_json",
+]
+
+
+def mean_and_standard_error(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """
+    Mean over runs and its standard error (0 with a single run).
+
+    :param values: (runs, ...) one row per run
+    :return: mean and standard error, each of shape values.shape[1:]
+    """
+    values = np.asarray(values, dtype=np.float64)
+    n_runs = len(values)
+    if n_runs < 2:
+        return values.mean(axis=0), np.zeros(values.shape[1:])
+    return values.mean(axis=0), values.std(axis=0, ddof=1) / np.sqrt(n_runs)
+
+
+def window_means(values: np.ndarray, windows: Sequence[tuple[int, int]]) -> dict[str, dict[str, float]]:
+    """
+    The reward averaged over each window of steps ``[start, stop)``, its mean and standard error over runs.
+
+    :param values: (runs, steps)
+    :param windows: ``(start, stop)`` pairs
+    :return: ``{"[start, stop)": {"mean": ..., "se": ...}}``
+    """
+    out = {}
+    for start, stop in windows:
+        mean, se = mean_and_standard_error(np.asarray(values)[:, start:stop].mean(axis=1))
+        out[f"[{start}, {stop})"] = {"mean": float(mean), "se": float(se)}
+    return out
+
+
+def moving_average(values: np.ndarray, window: int) -> np.ndarray:
+    """Trailing moving average along the last axis (shorter windows at the start), same shape."""
+    values = np.asarray(values, dtype=np.float64)
+    if window <= 1:
+        return values
+    cumulative = np.cumsum(values, axis=-1)
+    shifted = np.zeros_like(cumulative)
+    shifted[..., window:] = cumulative[..., :-window]
+    counts = np.minimum(np.arange(1, values.shape[-1] + 1), window)
+    return (cumulative - shifted) / counts
+
+
+def write_curves_csv(path: Path, x_name: str, curves: Mapping[str, np.ndarray]) -> None:
+    """
+    One row per (x, method): ``x_name, method, mean, se, runs``.
+
+    :param path: the CSV file
+    :param x_name: name of the x column (``transition``, ``episode``, ...), x = 0, 1, ...
+    :param curves: method -> (runs, points) values
+    """
+    with open(path, "w", newline="") as file:
+        writer = csv.writer(file)
+        writer.writerow([x_name, "method", "mean", "se", "runs"])
+        for method, values in curves.items():
+            mean, se = mean_and_standard_error(values)
+            for x, (m, s) in enumerate(zip(mean, se, strict=True)):
+                writer.writerow([x, method, f"{m:.6g}", f"{s:.6g}", len(values)])
+
+
+def plot_curves(
+    ax: Any,
+    curves: Mapping[str, np.ndarray],
+    *,
+    smooth: int = 1,
+    xlabel: str = "transitions",
+    ylabel: str = "average reward",
+) -> None:
+    """
+    Mean curves with a band of one standard error, as in the paper's Figures 5, 6 and 8.
+
+    :param ax: matplotlib Axes
+    :param curves: label -> (runs, points) values
+    :param smooth: each run is first averaged over a trailing window of this many points
+    :param xlabel: x axis label
+    :param ylabel: y axis label
+    """
+    for label, values in curves.items():
+        mean, se = mean_and_standard_error(moving_average(values, smooth))
+        x = np.arange(len(mean))
+        (line,) = ax.plot(x, mean, label=f"{label} ({len(values)} runs)", linewidth=1.5)
+        ax.fill_between(x, mean - se, mean + se, color=line.get_color(), alpha=0.25, linewidth=0)
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel + (f" (moving average over {smooth})" if smooth > 1 else ""))
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+
+
+def summary(figure: str, parameters: Mapping[str, Any], seed: int, seconds: float, **results: Any) -> dict:
+    """The JSON summary of a figure: what was run, how long it took, and its aggregates."""
+    return {
+        "figure": figure,
+        "package_version": __version__,
+        "python": platform.python_version(),
+        "seed": seed,
+        "wall_time_seconds": round(seconds, 2),
+        "parameters": dict(parameters),
+        **results,
+    }
+
+
+def write_json(path: Path, data: Mapping[str, Any]) -> None:
+    """Write ``data`` as indented JSON."""
+    with open(path, "w") as file:
+        json.dump(data, file, indent=2)
+        file.write("\n")

@@ -1,0 +1,300 @@
+"""
+Runs of ``TRLSD`` on the maze, as the paper's section 4 sets them up: the experiments' fast path.
+
+A run drives a ``TRLSD`` model through ``TRLSD.act`` and ``TRLSD.add_online_transition`` from a plain loop
+over the env, so it uses the algorithm's own buffer, reward heads, trigger and FQI solver, and takes the
+same actions as ``model.learn`` with the same seed (``tests/test_experiments.py`` checks it), without
+SB3's rollout machinery (vectorised env, monitor, logger, torch predict), which costs as much as the
+refits on the maze. Runs are independent: each job has its own seed, and ``run_jobs`` spreads them over
+processes.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Iterable, Sequence
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import asdict, dataclass, field
+from typing import Any, TypeVar
+
+import gymnasium as gym
+import numpy as np
+from threadpoolctl import threadpool_limits
+from tqdm.auto import tqdm
+
+from envs import MAZE_ID, expected_reward
+from envs.dynamics import MAZE_SIZE
+from sb3_trlsd.data import collect_transitions
+from sb3_trlsd.trlsd import TRLSD
+
+__all__ = [
+    "Method",
+    "RunRecord",
+    "Snapshot",
+    "multitask_run",
+    "run_jobs",
+    "run_online",
+    "transfer_run",
+]
+
+SOURCE_TRANSITIONS = 25_000  # paper, section 4: random transitions before the target task
+ONLINE_TRANSITIONS = 1_000  # paper, section 4: online transitions on the target task
+SNAPSHOT_GRID = 50  # R^ of a snapshot is drawn on a SNAPSHOT_GRID x SNAPSHOT_GRID grid of states
+SNAPSHOT_TRAIL = 30  # a snapshot's trajectory: the last transitions before it
+Job = TypeVar("Job")
+Result = TypeVar("Result")
+
+
+@dataclass(frozen=True)
+class Method:
+    """
+    One curve of a figure: how TRLSD learns the target task.
+
+    :param label: name in the plots and files
+    :param reward_head: ``"ridge"`` (continuous), ``"tabular"`` (discrete), ``"corners"`` or ``"known"``
+    :param kappa: optimism (0: non-optimistic)
+    :param sigma: similarity width of the ridge head's W (eq. 8)
+    :param similarity: ``"state"`` (eq. 6) or ``"features"`` (eq. 7)
+    :param update_ratio: refit when the CI at an encountered state has been divided by this
+    :param transfer: start from the random source transitions (False: "no transfer")
+    """
+
+    label: str
+    reward_head: str = "ridge"
+    kappa: float = 0.1
+    sigma: float = 0.2
+    similarity: str = "state"
+    update_ratio: float = 2.0
+    transfer: bool = True
+
+    def parameters(self) -> dict[str, Any]:
+        """The method as a JSON-friendly dict."""
+        return asdict(self)
+
+    def make_model(self, env: gym.Env, seed: int) -> TRLSD:
+        """A TRLSD model of this method on ``env`` (the paper's linear Q on 5x5 RBFs)."""
+        return TRLSD(
+            "LinearPolicy",
+            env,
+            reward_head=self.reward_head,
+            kappa=self.kappa,
+            sigma=self.sigma,
+            similarity=self.similarity,
+            update_ratio=self.update_ratio,
+            seed=seed,
+        )
+
+
+@dataclass
+class Snapshot:
+    """What a run looked like after ``step`` transitions (the paper's Figures 1-4)."""
+
+    step: int
+    reward_estimate: np.ndarray  # R^ on a grid of states, (SNAPSHOT_GRID, SNAPSHOT_GRID), row = y
+    policy: np.ndarray  # greedy action at each cell centre, (5, 5) indexed [i - 1, j - 1]
+    trajectory: np.ndarray  # the last states visited, (t, 2)
+
+
+@dataclass
+class RunRecord:
+    """
+    One run's outcome.
+
+    :param rewards: E[R_task(s_t)] of the state each online transition starts from, (n_steps,)
+    :param tasks: the task of each online transition, (n_steps,)
+    :param policy_updates: refits of the target task(s) during the online phase, the first one included
+    :param seconds: wall time of the run
+    :param snapshots: pictures asked for with ``snapshot_at``
+    """
+
+    rewards: np.ndarray
+    tasks: np.ndarray
+    policy_updates: int
+    seconds: float
+    snapshots: list[Snapshot] = field(default_factory=list)
+
+
+def snapshot(model: TRLSD, task: int, step: int, visited: np.ndarray) -> Snapshot:
+    """The reward estimate, greedy policy and recent trajectory of ``task`` after ``step`` transitions."""
+    centres = (np.arange(SNAPSHOT_GRID) + 0.5) * MAZE_SIZE / SNAPSHOT_GRID
+    x, y = np.meshgrid(centres, centres)  # row = y
+    grid = np.column_stack([x.ravel(), y.ravel()])
+    estimate = model.reward_head_of(task).estimate(grid).reshape(SNAPSHOT_GRID, SNAPSHOT_GRID)
+    cell_centres = np.arange(MAZE_SIZE) + 0.5
+    ci, cj = np.meshgrid(cell_centres, cell_centres, indexing="ij")  # [i - 1, j - 1]
+    q = model.policy.q_values(np.column_stack([ci.ravel(), cj.ravel()]), task)
+    return Snapshot(
+        step=step,
+        reward_estimate=estimate,
+        policy=q.argmax(axis=1).reshape(MAZE_SIZE, MAZE_SIZE),
+        trajectory=visited[max(0, step - SNAPSHOT_TRAIL) : step + 1].copy(),
+    )
+
+
+def run_online(
+    model: TRLSD, env: gym.Env, n_steps: int, seed: int, snapshot_at: Iterable[int] = ()
+) -> RunRecord:
+    """
+    Learn online for ``n_steps`` transitions as ``model.learn(n_steps)`` would: reset with ``seed``, act
+    greedily (fitting a task at its first step), store each transition and refit the tasks that trigger,
+    reset after the end of each trajectory.
+
+    :param model: the model (``learning_starts=0``, ``train_freq=1``, its defaults)
+    :param env: the env the model was built on (stepped here directly)
+    :param n_steps: online transitions
+    :param seed: seed of the env's first reset (``learn`` uses the model's seed)
+    :param snapshot_at: steps after which to take a ``Snapshot`` of the first task
+    :return: the record; ``rewards`` are noise-free expected rewards of the visited states
+    """
+    snapshot_steps = set(snapshot_at)
+    updates_before = sum(model.policy_updates.values())
+    states = np.empty((n_steps + 1, 2))
+    tasks = np.empty(n_steps, dtype=np.int64)
+    snapshots = []
+    start = time.perf_counter()
+    obs, _ = env.reset(seed=seed)
+    for step in range(n_steps):
+        states[step], tasks[step] = obs["state"], obs["task"]
+        if step in snapshot_steps:
+            snapshots.append(snapshot(model, int(tasks[0]), step, states[: step + 1]))
+        action = model.act(obs)
+        next_obs, reward, terminated, truncated, _ = env.step(action)
+        model.add_online_transition(obs, action, float(reward), next_obs, terminated, truncated)
+        obs = env.reset()[0] if terminated or truncated else next_obs
+    states[n_steps] = obs["state"]
+    if n_steps in snapshot_steps:
+        snapshots.append(snapshot(model, int(tasks[0]), n_steps, states))
+    rewards = np.empty(n_steps)
+    for task in np.unique(tasks):
+        rewards[tasks == task] = expected_reward(states[:n_steps][tasks == task], int(task))
+    return RunRecord(
+        rewards=rewards,
+        tasks=tasks,
+        policy_updates=sum(model.policy_updates.values()) - updates_before,
+        seconds=time.perf_counter() - start,
+        snapshots=snapshots,
+    )
+
+
+def transfer_run(
+    method: Method,
+    task: int,
+    seed: int,
+    n_source: int | None = None,
+    n_online: int | None = None,
+    snapshot_at: Sequence[int] = (),
+) -> RunRecord:
+    """
+    One run of the paper's transfer experiments (Figures 1-7): ``n_source`` random transitions, their
+    rewards discarded, then ``n_online`` online transitions on ``task``.
+
+    The source transitions are drawn on another task (it does not matter: their rewards are discarded),
+    seeded by ``seed`` too, so that a run is reproducible from its seed alone.
+
+    :param method: how TRLSD learns
+    :param task: target task index 0..24
+    :param seed: the run's seed
+    :param n_source: random source transitions, ignored without transfer (None: ``SOURCE_TRANSITIONS``)
+    :param n_online: online transitions (None: ``ONLINE_TRANSITIONS``)
+    :param snapshot_at: steps after which to take pictures
+    :return: the record
+    """
+    start = time.perf_counter()
+    n_source = SOURCE_TRANSITIONS if n_source is None else n_source
+    n_online = ONLINE_TRANSITIONS if n_online is None else n_online
+    env = gym.make(MAZE_ID, task=task)
+    model = method.make_model(env, seed)
+    if method.transfer and n_source:
+        source_env = gym.make(MAZE_ID, task=(task + 1 + seed) % 25)
+        model.load_transitions(collect_transitions(source_env, n_source, seed=seed + 1), keep_rewards=False)
+    record = run_online(model, env, n_online, seed, snapshot_at)
+    record.seconds = time.perf_counter() - start
+    return record
+
+
+def multitask_run(method: Method, seed: int, n_turns: int = 20, episode_steps: int = 50) -> RunRecord:
+    """
+    One run of the multi-task experiment (Figure 8): the 25 tasks in turn, one trajectory of
+    ``episode_steps`` transitions per task per turn, no source data.
+
+    :param method: how TRLSD learns (its ``transfer`` is ignored: there is no source)
+    :param seed: the run's seed
+    :param n_turns: turns over the 25 tasks
+    :param episode_steps: transitions per trajectory
+    :return: the record, ``n_turns * 25 * episode_steps`` transitions
+    """
+    env = gym.make(
+        MAZE_ID,
+        tasks="all",
+        task_schedule="round_robin",
+        termination_prob=0.0,
+        max_episode_steps=episode_steps,
+    )
+    model = method.make_model(env, seed)
+    return run_online(model, env, n_turns * 25 * episode_steps, seed)
+
+
+def _call(job: tuple[Callable[..., Result], tuple, dict]) -> Result:
+    function, args, kwargs = job
+    # The products of a run are small: BLAS threads only fight the other workers for the cores.
+    with threadpool_limits(1):
+        return function(*args, **kwargs)
+
+
+def run_jobs(
+    function: Callable[..., Result],
+    jobs: Sequence[tuple[tuple, dict]],
+    workers: int = 1,
+    description: str = "runs",
+) -> list[Result]:
+    """
+    ``function(*args, **kwargs)`` for each job, in order, over ``workers`` processes, with a progress bar.
+
+    :param function: a module-level function (picklable)
+    :param jobs: ``(args, kwargs)`` of each call
+    :param workers: processes (1: in this process)
+    :param description: label of the progress bar
+    :return: the results in the order of ``jobs``
+    """
+    calls = [(function, args, kwargs) for args, kwargs in jobs]
+    bar = tqdm(total=len(calls), desc=description, unit="run", leave=False)
+    try:
+        if workers <= 1:
+            results = []
+            for call in calls:
+                results.append(_call(call))
+                bar.update()
+            return results
+        with ProcessPoolExecutor(workers) as pool:
+            results = []
+            for result in pool.map(_call, calls, chunksize=1):
+                results.append(result)
+                bar.update()
+            return results
+    finally:
+        bar.close()
+
+
+def transfer_runs(
+    methods: Sequence[Method],
+    tasks: Sequence[int],
+    runs: int,
+    seed: int,
+    workers: int,
+    n_source: int | None = None,
+    n_online: int | None = None,
+) -> dict[str, list[RunRecord]]:
+    """
+    ``runs`` transfer runs of each method, run ``r`` on ``tasks[r % len(tasks)]`` with seed ``seed + r``:
+    every method sees the same tasks, source transitions and env seeds (common random numbers), so that
+    their differences are not blurred by the luck of the draw.
+
+    :return: method label -> its runs' records
+    """
+    jobs = [
+        ((method, tasks[run % len(tasks)], seed + run, n_source, n_online), {})
+        for method in methods
+        for run in range(runs)
+    ]
+    records = run_jobs(transfer_run, jobs, workers, description=f"{len(methods)} methods x {runs} runs")
+    return {method.label: records[i * runs : (i + 1) * runs] for i, method in enumerate(methods)}

@@ -1,0 +1,126 @@
+"""The experiments' fast path against ``TRLSD.learn``, and the ``reproduce`` command on tiny sizes."""
+
+import csv
+import json
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from matplotlib.image import imread
+
+from envs import MAZE_ID, expected_reward
+from sb3_trlsd import collect_transitions
+from sb3_trlsd.cli import main
+from sb3_trlsd.experiments import FIGURES, multitask, runner
+from sb3_trlsd.experiments.reporting import mean_and_standard_error, moving_average, window_means
+from sb3_trlsd.experiments.runner import Method, multitask_run, transfer_run
+
+
+@pytest.mark.parametrize(
+    "method",
+    [Method("optimistic ridge"), Method("tabular", reward_head="tabular"), Method("kappa 0", kappa=0.0)],
+    ids=lambda method: method.label,
+)
+def test_fast_path_takes_the_actions_of_learn(method):
+    """If the fast path drifted from SB3's loop (seeding, resets, storage precision), states would differ."""
+    task, seed, n_source, n_online = 7, 3, 1_500, 250
+    record = transfer_run(method, task, seed, n_source=n_source, n_online=n_online)
+
+    env = gym.make(MAZE_ID, task=task)
+    model = method.make_model(env, seed)
+    source_env = gym.make(MAZE_ID, task=(task + 1 + seed) % 25)  # as transfer_run draws its source
+    model.load_transitions(collect_transitions(source_env, n_source, seed=seed + 1), keep_rewards=False)
+    model.learn(n_online)
+    states = model.replay_buffer.transitions().states[-n_online:]
+
+    np.testing.assert_array_equal(record.rewards, expected_reward(states, task))
+    assert record.policy_updates == model.policy_updates[task]
+
+
+def test_multitask_fast_path_takes_the_actions_of_learn():
+    """Round-robin tasks with a time limit: each task fitted at its first step, trajectories cut at 50."""
+    method, seed = Method("ridge"), 5
+    record = multitask_run(method, seed, n_turns=1, episode_steps=20)
+
+    env = gym.make(
+        MAZE_ID, tasks="all", task_schedule="round_robin", termination_prob=0.0, max_episode_steps=20
+    )
+    model = method.make_model(env, seed)
+    model.learn(25 * 20)
+    data = model.replay_buffer.transitions()
+
+    np.testing.assert_array_equal(record.tasks, data.tasks)
+    np.testing.assert_array_equal(record.tasks, np.repeat(np.arange(25), 20))
+    for task in range(25):
+        rows = data.tasks == task
+        np.testing.assert_array_equal(record.rewards[rows], expected_reward(data.states[rows], task))
+    assert record.policy_updates == sum(model.policy_updates.values())
+
+
+def test_reporting_statistics_match_numpy():
+    """Wrong standard errors or windows would misstate every figure's uncertainty."""
+    values = np.arange(12.0).reshape(3, 4)
+    mean, se = mean_and_standard_error(values)
+    np.testing.assert_allclose(mean, [4, 5, 6, 7])
+    np.testing.assert_allclose(se, np.full(4, 4.0 / np.sqrt(3)))
+    windows = window_means(values, [(0, 2), (2, 4)])
+    assert windows["[0, 2)"]["mean"] == pytest.approx(4.5)
+    assert windows["[2, 4)"]["se"] == pytest.approx(4.0 / np.sqrt(3))
+    np.testing.assert_allclose(moving_average(np.array([1.0, 3.0, 5.0, 7.0]), 2), [1, 2, 4, 6])
+
+
+@pytest.fixture
+def tiny_sizes(monkeypatch):
+    """Few source transitions and one short multi-task turn: the figures' code paths in seconds."""
+    monkeypatch.setattr(runner, "SOURCE_TRANSITIONS", 400)
+    monkeypatch.setattr(multitask, "TURNS", 1)
+    monkeypatch.setattr(multitask, "EPISODE_STEPS", 8)
+
+
+@pytest.mark.parametrize("figure", list(FIGURES))
+def test_reproduce_writes_valid_files(figure, tiny_sizes, tmp_path, capsys):
+    """Each figure's command must leave a readable CSV of curves, a PNG and a JSON summary."""
+    assert (
+        main(["reproduce", figure, "--runs", "1", "--out", str(tmp_path), "--workers", "1", "--seed", "2"])
+        == 0
+    )
+    assert f"{figure} done" in capsys.readouterr().out
+
+    with open(tmp_path / f"{figure}.csv") as file:
+        rows = list(csv.DictReader(file))
+    x_name = "episode" if figure == "fig8" else "transition"
+    assert rows and set(rows[0]) == {x_name, "method", "mean", "se", "runs"}
+    assert all(np.isfinite(float(row["mean"])) and float(row["se"]) >= 0 for row in rows)
+
+    image = imread(tmp_path / f"{figure}.png")
+    assert image.ndim == 3 and min(image.shape[:2]) > 200
+
+    data = json.loads((tmp_path / f"{figure}.json").read_text())
+    assert data["figure"] == figure and data["seed"] == 2 and data["wall_time_seconds"] > 0
+    assert data["package_version"] and data["parameters"] and data["results"]
+
+
+@pytest.mark.parametrize(
+    ("arguments", "message"),
+    [
+        (["reproduce", "fig9"], "invalid choice: 'fig9'"),
+        (["reproduce", "fig5", "--runs", "0"], "expected an integer >= 1, got 0"),
+        (["reproduce", "fig5", "--workers", "two"], "expected an integer >= 1, got 'two'"),
+    ],
+    ids=["unknown figure", "zero runs", "workers not a number"],
+)
+def test_reproduce_rejects_bad_arguments(arguments, message, capsys):
+    with pytest.raises(SystemExit) as error:
+        main(arguments)
+    assert error.value.code == 2
+    assert message in capsys.readouterr().err
+
+
+def test_reproduce_rejects_an_unwritable_output_directory(tmp_path, capsys):
+    """A file where the directory should be: the error names the directory before any run starts."""
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    with pytest.raises(SystemExit) as error:
+        main(["reproduce", "fig5", "--out", str(blocker / "results")])
+    assert error.value.code == 2
+    assert "cannot create the output directory" in capsys.readouterr().err
