@@ -19,6 +19,7 @@ from concurrent.futures import ProcessPoolExecutor
 
 import gymnasium as gym
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from envs.maze import N_TASKS, expected_reward
 from sb3_trlsd import TRLSD, collect_transitions
@@ -35,6 +36,12 @@ METHODS = {
 
 def run_once(method: str, run: int, n_source: int, n_online: int) -> tuple[np.ndarray, int, float]:
     """One run: the expected reward at each online step, the number of policy updates, and the wall time."""
+    # The products of a run are small: BLAS threads would only fight the other workers for the cores.
+    with threadpool_limits(1):
+        return _run_once(method, run, n_source, n_online)
+
+
+def _run_once(method: str, run: int, n_source: int, n_online: int) -> tuple[np.ndarray, int, float]:
     start = time.perf_counter()
     settings = METHODS[method]
     task = run % N_TASKS
