@@ -74,6 +74,7 @@ def writable_directory(text: str) -> str:
 def reproduce_command(args: argparse.Namespace) -> int:
     """Run the experiments of one figure (or all) and write their CSV, PNG and JSON files."""
     from sb3_trlsd.experiments import reproduce
+    from sb3_trlsd.experiments.reporting import results_table
 
     figures = list(FIGURES) if args.figure == "all" else [args.figure]
     for figure in figures:
@@ -81,7 +82,7 @@ def reproduce_command(args: argparse.Namespace) -> int:
         files = ", ".join(
             os.path.join(os.path.abspath(args.out), f"{figure}.{ext}") for ext in ("png", "csv", "json")
         )
-        print(f"{figure} done in {data['wall_time_seconds']:.0f} s: {files}")
+        print(f"{figure} done in {data['wall_time_seconds']:.0f} s: {files}\n\n{results_table(data)}\n")
     return 0
 
 

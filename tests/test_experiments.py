@@ -12,7 +12,12 @@ from envs import MAZE_ID, expected_reward
 from sb3_trlsd import collect_transitions
 from sb3_trlsd.cli import main
 from sb3_trlsd.experiments import FIGURES, multitask, runner
-from sb3_trlsd.experiments.reporting import mean_and_standard_error, moving_average, window_means
+from sb3_trlsd.experiments.reporting import (
+    mean_and_standard_error,
+    moving_average,
+    results_table,
+    window_means,
+)
 from sb3_trlsd.experiments.runner import Method, multitask_run, transfer_run
 
 
@@ -124,3 +129,17 @@ def test_reproduce_rejects_an_unwritable_output_directory(tmp_path, capsys):
         main(["reproduce", "fig5", "--out", str(blocker / "results")])
     assert error.value.code == 2
     assert "cannot create the output directory" in capsys.readouterr().err
+
+
+def test_results_table_has_a_row_per_method_with_standard_errors():
+    """The table the command prints (and the README quotes) must carry every method's mean ± se."""
+    data = {
+        "figure": "figX",
+        "results": {
+            "a": {"reward": {"[0, 10)": {"mean": 0.5, "se": 0.01}}, "runs": 3},
+            "b": {"reward": {"[0, 10)": {"mean": 0.25, "se": 0.02}}, "runs": 3},
+        },
+    }
+    lines = results_table(data).splitlines()
+    assert lines[0] == "| method | reward [0, 10) | runs |"
+    assert lines[2:] == ["| a | 0.500 ± 0.010 | 3 |", "| b | 0.250 ± 0.020 | 3 |"]

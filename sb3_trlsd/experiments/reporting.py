@@ -17,6 +17,7 @@ __all__ = [
     "mean_and_standard_error",
     "moving_average",
     "plot_curves",
+    "results_table",
     "summary",
     "window_means",
     "write_curves_csv",
@@ -128,3 +129,42 @@ def write_json(path: Path, data: Mapping[str, Any]) -> None:
     with open(path, "w") as file:
         json.dump(data, file, indent=2)
         file.write("\n")
+
+
+def _cell(value: Any) -> str:
+    if isinstance(value, Mapping) and set(value) == {"mean", "se"}:
+        return f"{value['mean']:.3f} ± {value['se']:.3f}"
+    if isinstance(value, float):
+        return f"{value:.3g}"
+    return str(value)
+
+
+def _flatten(entry: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+    """{"reward": {"[0, 100)": {"mean", "se"}}} -> {"reward [0, 100)": {"mean", "se"}}."""
+    flat = {}
+    for key, value in entry.items():
+        name = f"{prefix} {key}".strip()
+        if isinstance(value, Mapping) and set(value) != {"mean", "se"}:
+            flat.update(_flatten(value, name))
+        else:
+            flat[name] = value
+    return flat
+
+
+def results_table(data: Mapping[str, Any]) -> str:
+    """
+    A figure's JSON results as a Markdown table: one row per method (or setting), mean ± standard error.
+
+    :param data: a figure's summary (``results`` maps each method to its aggregates)
+    :return: the table
+    """
+    results = data["results"]
+    if not all(isinstance(entry, Mapping) for entry in results.values()):
+        results = {data["figure"]: results}  # a single run's aggregates (Figures 2-4)
+    rows = {label: _flatten(entry) for label, entry in results.items()}
+    columns = list(dict.fromkeys(column for row in rows.values() for column in row))
+    header = [column.replace("_", " ") for column in columns]
+    lines = ["| method | " + " | ".join(header) + " |", "|---" * (len(columns) + 1) + "|"]
+    for label, row in rows.items():
+        lines.append(f"| {label} | " + " | ".join(_cell(row.get(column, "")) for column in columns) + " |")
+    return "\n".join(lines)
