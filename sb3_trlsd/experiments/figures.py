@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import textwrap
 import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -37,8 +38,8 @@ def new_figure(n_panels: int, width: float = 5.5, height: float = 4.2) -> tuple[
 
 
 def save_figure(figure: Any, path: Path, title: str) -> None:
-    """Title the figure and write it as a PNG."""
-    figure.suptitle(title)
+    """Title the figure (wrapped to its width) and write it as a PNG."""
+    figure.suptitle(textwrap.fill(title, width=int(11 * figure.get_figwidth())))
     figure.tight_layout()
     figure.savefig(path)
 

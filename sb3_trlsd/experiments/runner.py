@@ -40,7 +40,7 @@ __all__ = [
 SOURCE_TRANSITIONS = 25_000  # paper, section 4: random transitions before the target task
 ONLINE_TRANSITIONS = 1_000  # paper, section 4: online transitions on the target task
 SNAPSHOT_GRID = 50  # R^ of a snapshot is drawn on a SNAPSHOT_GRID x SNAPSHOT_GRID grid of states
-SNAPSHOT_TRAIL = 30  # a snapshot's trajectory: the last transitions before it
+SNAPSHOT_TRAIL = 50  # a snapshot's trajectory: the transitions since the previous one, at most this many
 Job = TypeVar("Job")
 Result = TypeVar("Result")
 
@@ -114,8 +114,8 @@ class RunRecord:
     snapshots: list[Snapshot] = field(default_factory=list)
 
 
-def snapshot(model: TRLSD, task: int, step: int, visited: np.ndarray) -> Snapshot:
-    """The reward estimate, greedy policy and recent trajectory of ``task`` after ``step`` transitions."""
+def snapshot(model: TRLSD, task: int, step: int, trajectory: np.ndarray) -> Snapshot:
+    """The reward estimate and greedy policy of ``task`` after ``step`` transitions, with a trajectory."""
     centres = (np.arange(SNAPSHOT_GRID) + 0.5) * MAZE_SIZE / SNAPSHOT_GRID
     x, y = np.meshgrid(centres, centres)  # row = y
     grid = np.column_stack([x.ravel(), y.ravel()])
@@ -127,8 +127,18 @@ def snapshot(model: TRLSD, task: int, step: int, visited: np.ndarray) -> Snapsho
         step=step,
         reward_estimate=estimate,
         policy=q.argmax(axis=1).reshape(MAZE_SIZE, MAZE_SIZE),
-        trajectory=visited[max(0, step - SNAPSHOT_TRAIL) : step + 1].copy(),
+        trajectory=trajectory.copy(),
     )
+
+
+def _broken_at_resets(states: np.ndarray, new_trajectory: np.ndarray, start: int, stop: int) -> np.ndarray:
+    """states[start:stop] with a row of NaN before each reset, where a drawn line must break."""
+    rows = []
+    for t in range(start, stop):
+        if new_trajectory[t] and t > start:
+            rows.append(np.full(2, np.nan))
+        rows.append(states[t])
+    return np.array(rows)
 
 
 def run_online(
@@ -146,24 +156,35 @@ def run_online(
     :param snapshot_at: steps after which to take a ``Snapshot`` of the first task
     :return: the record; ``rewards`` are noise-free expected rewards of the visited states
     """
-    snapshot_steps = set(snapshot_at)
+    snapshot_steps = sorted(set(snapshot_at))
+    trail_starts = {  # each snapshot draws the states since the previous one, at most SNAPSHOT_TRAIL
+        step: max(previous, step - SNAPSHOT_TRAIL)
+        for previous, step in zip([0, *snapshot_steps[:-1]], snapshot_steps, strict=True)
+    }
     updates_before = sum(model.policy_updates.values())
     states = np.empty((n_steps + 1, 2))
     tasks = np.empty(n_steps, dtype=np.int64)
+    new_trajectory = np.zeros(n_steps + 1, dtype=bool)  # states[t] starts a trajectory after a reset
     snapshots = []
     start = time.perf_counter()
     obs, _ = env.reset(seed=seed)
     for step in range(n_steps):
         states[step], tasks[step] = obs["state"], obs["task"]
-        if step in snapshot_steps:
-            snapshots.append(snapshot(model, int(tasks[0]), step, states[: step + 1]))
+        if step in trail_starts:
+            trail = _broken_at_resets(states, new_trajectory, trail_starts[step], step + 1)
+            snapshots.append(snapshot(model, int(tasks[0]), step, trail))
         action = model.act(obs)
         next_obs, reward, terminated, truncated, _ = env.step(action)
         model.add_online_transition(obs, action, float(reward), next_obs, terminated, truncated)
-        obs = env.reset()[0] if terminated or truncated else next_obs
+        if terminated or truncated:
+            obs, _ = env.reset()
+            new_trajectory[step + 1] = True
+        else:
+            obs = next_obs
     states[n_steps] = obs["state"]
-    if n_steps in snapshot_steps:
-        snapshots.append(snapshot(model, int(tasks[0]), n_steps, states))
+    if n_steps in trail_starts:
+        trail = _broken_at_resets(states, new_trajectory, trail_starts[n_steps], n_steps + 1)
+        snapshots.append(snapshot(model, int(tasks[0]), n_steps, trail))
     rewards = np.empty(n_steps)
     for task in np.unique(tasks):
         rewards[tasks == task] = expected_reward(states[:n_steps][tasks == task], int(task))
