@@ -11,6 +11,7 @@ processes.
 
 from __future__ import annotations
 
+import itertools
 import time
 from collections.abc import Callable, Iterable, Sequence
 from concurrent.futures import ProcessPoolExecutor
@@ -159,7 +160,7 @@ def run_online(
     snapshot_steps = sorted(set(snapshot_at))
     trail_starts = {  # each snapshot draws the states since the previous one, at most SNAPSHOT_TRAIL
         step: max(previous, step - SNAPSHOT_TRAIL)
-        for previous, step in zip([0, *snapshot_steps[:-1]], snapshot_steps, strict=True)
+        for previous, step in itertools.pairwise([0, *snapshot_steps])
     }
     updates_before = sum(model.policy_updates.values())
     states = np.empty((n_steps + 1, 2))
