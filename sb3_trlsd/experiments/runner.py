@@ -279,7 +279,8 @@ def run_jobs(
     :return: the results in the order of ``jobs``
     """
     calls = [(function, args, kwargs) for args, kwargs in jobs]
-    bar = tqdm(total=len(calls), desc=description, unit="run", leave=False)
+    # No bar when the output is not a terminal (a log file would fill with its redraws).
+    bar = tqdm(total=len(calls), desc=description, unit="run", leave=False, disable=None)
     try:
         if workers <= 1:
             results = []
