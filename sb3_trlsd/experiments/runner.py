@@ -24,8 +24,8 @@ from threadpoolctl import threadpool_limits
 from tqdm.auto import tqdm
 
 from envs import MAZE_ID, expected_reward
-from envs.dynamics import MAZE_SIZE
 from sb3_trlsd.data import collect_transitions
+from sb3_trlsd.pictures import greedy_policy_grid, state_grid
 from sb3_trlsd.trlsd import TRLSD
 
 __all__ = [
@@ -117,17 +117,11 @@ class RunRecord:
 
 def snapshot(model: TRLSD, task: int, step: int, trajectory: np.ndarray) -> Snapshot:
     """The reward estimate and greedy policy of ``task`` after ``step`` transitions, with a trajectory."""
-    centres = (np.arange(SNAPSHOT_GRID) + 0.5) * MAZE_SIZE / SNAPSHOT_GRID
-    x, y = np.meshgrid(centres, centres)  # row = y
-    grid = np.column_stack([x.ravel(), y.ravel()])
-    estimate = model.reward_head_of(task).estimate(grid).reshape(SNAPSHOT_GRID, SNAPSHOT_GRID)
-    cell_centres = np.arange(MAZE_SIZE) + 0.5
-    ci, cj = np.meshgrid(cell_centres, cell_centres, indexing="ij")  # [i - 1, j - 1]
-    q = model.policy.q_values(np.column_stack([ci.ravel(), cj.ravel()]), task)
+    estimate = model.reward_head_of(task).estimate(state_grid(SNAPSHOT_GRID))
     return Snapshot(
         step=step,
-        reward_estimate=estimate,
-        policy=q.argmax(axis=1).reshape(MAZE_SIZE, MAZE_SIZE),
+        reward_estimate=estimate.reshape(SNAPSHOT_GRID, SNAPSHOT_GRID),
+        policy=greedy_policy_grid(model.policy.q_values, task),
         trajectory=trajectory.copy(),
     )
 
@@ -205,6 +199,7 @@ def transfer_run(
     n_source: int | None = None,
     n_online: int | None = None,
     snapshot_at: Sequence[int] = (),
+    env_kwargs: dict[str, Any] | None = None,
 ) -> RunRecord:
     """
     One run of the paper's transfer experiments (Figures 1-7): ``n_source`` random transitions, their
@@ -219,12 +214,14 @@ def transfer_run(
     :param n_source: random source transitions, ignored without transfer (None: ``SOURCE_TRANSITIONS``)
     :param n_online: online transitions (None: ``ONLINE_TRANSITIONS``)
     :param snapshot_at: steps after which to take pictures
+    :param env_kwargs: keyword arguments of the target task's env (e.g. ``reward_noise_std``), paper's
+        settings by default
     :return: the record
     """
     start = time.perf_counter()
     n_source = SOURCE_TRANSITIONS if n_source is None else n_source
     n_online = ONLINE_TRANSITIONS if n_online is None else n_online
-    env = gym.make(MAZE_ID, task=task)
+    env = gym.make(MAZE_ID, task=task, **(env_kwargs or {}))
     model = method.make_model(env, seed)
     if method.transfer and n_source:
         source_env = gym.make(MAZE_ID, task=(task + 1 + seed) % 25)
@@ -306,16 +303,21 @@ def transfer_runs(
     workers: int,
     n_source: int | None = None,
     n_online: int | None = None,
+    env_kwargs: dict[str, Any] | None = None,
 ) -> dict[str, list[RunRecord]]:
     """
     ``runs`` transfer runs of each method, run ``r`` on ``tasks[r % len(tasks)]`` with seed ``seed + r``:
     every method sees the same tasks, source transitions and env seeds (common random numbers), so that
     their differences are not blurred by the luck of the draw.
 
+    :param env_kwargs: keyword arguments of the target task's env (paper's settings by default)
     :return: method label -> its runs' records
     """
     jobs = [
-        ((method, tasks[run % len(tasks)], seed + run, n_source, n_online), {})
+        (
+            (method, tasks[run % len(tasks)], seed + run, n_source, n_online),
+            {"env_kwargs": env_kwargs},
+        )
         for method in methods
         for run in range(runs)
     ]
