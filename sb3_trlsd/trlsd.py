@@ -3,22 +3,28 @@
 from __future__ import annotations
 
 import copy
+import dataclasses
 import os
+from collections import deque
 from collections.abc import Callable
 from functools import partial
 from typing import Any, ClassVar, TypeVar
 
+import gymnasium as gym
 import numpy as np
 import torch as th
 from gymnasium import spaces
+from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.logger import HParam, Image, TensorBoardOutputFormat
 from stable_baselines3.common.noise import ActionNoise
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
 
 from sb3_trlsd.buffers import SharedDynamicsReplayBuffer, state_space_of
-from sb3_trlsd.data import Transitions
+from sb3_trlsd.data import Transitions, collect_transitions
 from sb3_trlsd.features import RBFGrid
+from sb3_trlsd.pictures import task_picture
 from sb3_trlsd.policies import LinearPolicy, MlpPolicy, TaskQPolicy
 from sb3_trlsd.reward_heads import REWARD_HEAD_NAMES, RewardHead, make_reward_head
 
@@ -26,6 +32,7 @@ __all__ = ["TRLSD"]
 
 SelfTRLSD = TypeVar("SelfTRLSD", bound="TRLSD")
 UncertaintyFn = Callable[[np.ndarray], np.ndarray]
+PICTURE_TRAIL = 50  # states of a task's latest trajectory drawn in its TensorBoard picture
 
 
 class TRLSD(OffPolicyAlgorithm):
@@ -65,6 +72,14 @@ class TRLSD(OffPolicyAlgorithm):
     :param reward_fn: ``reward_fn(states, task)``, the expected reward for the ``"known"`` head; by default
         the env's ``expected_reward`` method
     :param reward_head_kwargs: extra arguments of the reward heads (e.g. ``w_floor``, ``r_max``)
+    :param source_transitions: source set loaded (rewards discarded) at the start of the first ``learn``:
+        a number of transitions to collect with a random policy from a copy of the env (``gym.make`` of
+        its spec; the paper's 25,000), or the path of a ``.npz`` saved by ``Transitions.save``; None: none
+        (``load_transitions`` does the same by hand). This is how a config file gives the source data.
+    :param source_seed: seed of the collection of ``source_transitions`` (None: ``seed``)
+    :param log_picture_every: with TensorBoard on the maze, log a picture of a task (R^, its bonus, the
+        greedy policy, the latest trajectory) at its first refit and then every this many of its refits;
+        0 disables it
     :param learning_rate: learning rate of the MLP policy's regression steps (unused by the linear one)
     :param buffer_size: size of the shared replay buffer
     :param learning_starts: steps of uniformly random actions before the first refit
@@ -107,6 +122,9 @@ class TRLSD(OffPolicyAlgorithm):
         rbf_sigma: float = 0.2,
         reward_fn: Callable[[np.ndarray, int], np.ndarray] | None = None,
         reward_head_kwargs: dict[str, Any] | None = None,
+        source_transitions: int | str | os.PathLike | None = None,
+        source_seed: int | None = None,
+        log_picture_every: int = 10,
         learning_rate: float | Schedule = 1e-3,
         buffer_size: int = 1_000_000,
         learning_starts: int = 0,
@@ -160,6 +178,10 @@ class TRLSD(OffPolicyAlgorithm):
         self.rbf_sigma = rbf_sigma
         self.reward_fn = reward_fn
         self.reward_head_kwargs = dict(reward_head_kwargs or {})
+        self.source_transitions = source_transitions
+        self.source_seed = source_seed
+        self.log_picture_every = log_picture_every
+        self._source_loaded = False
         self.reward_heads = {}
         self.policy_updates = {}
         # Refits waiting for the next training round, and each task's uncertainty as of its last refit.
@@ -171,10 +193,13 @@ class TRLSD(OffPolicyAlgorithm):
 
     def _check_arguments(self) -> None:
         """Reject bad settings at construction, naming the argument."""
-        if self.action_space is not None and not isinstance(self.action_space, spaces.Discrete):
-            raise ValueError(f"TRLSD needs a Discrete action space (env), got {self.action_space}")
-        if self.observation_space is not None:
-            state_space_of(self.observation_space)
+        # load() builds the model without an env first: the spaces are checked once they are known.
+        action_space = getattr(self, "action_space", None)
+        if action_space is not None and not isinstance(action_space, spaces.Discrete):
+            raise ValueError(f"TRLSD needs a Discrete action space (env), got {action_space}")
+        observation_space = getattr(self, "observation_space", None)
+        if observation_space is not None:
+            state_space_of(observation_space)
         if not isinstance(self.reward_head, RewardHead) and self.reward_head not in REWARD_HEAD_NAMES:
             raise ValueError(
                 f"reward_head must be one of {sorted(REWARD_HEAD_NAMES)} or a RewardHead instance, "
@@ -194,6 +219,17 @@ class TRLSD(OffPolicyAlgorithm):
             raise ValueError(f"gamma must be in (0, 1), got {self.gamma}")
         if self.fqi_max_iterations is not None and self.fqi_max_iterations < 1:
             raise ValueError(f"fqi_max_iterations must be >= 1 or None, got {self.fqi_max_iterations}")
+        source = self.source_transitions
+        if isinstance(source, bool) or not (
+            source is None
+            or isinstance(source, (str, os.PathLike))
+            or (isinstance(source, int) and source >= 1)
+        ):
+            raise ValueError(
+                f"source_transitions must be None, a number >= 1 or the path of a .npz, got {source!r}"
+            )
+        if not isinstance(self.log_picture_every, int) or self.log_picture_every < 0:
+            raise ValueError(f"log_picture_every must be an integer >= 0, got {self.log_picture_every!r}")
 
     def _setup_model(self) -> None:
         if self.replay_buffer_class is None:
@@ -210,10 +246,11 @@ class TRLSD(OffPolicyAlgorithm):
         self.features = RBFGrid.for_box(
             state_space_of(self.observation_space), self.rbf_per_dim, self.rbf_sigma
         )
+        self._online_trail = {}
 
     def _excluded_save_params(self) -> list[str]:
         # Rebuilt by _setup_model.
-        return [*super()._excluded_save_params(), "features"]
+        return [*super()._excluded_save_params(), "features", "_online_trail"]
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
         return ["policy"], []
@@ -269,6 +306,28 @@ class TRLSD(OffPolicyAlgorithm):
         # New dynamics data: every fitted task is refitted at the next training round.
         self._due_tasks.update(int(task) for task in np.flatnonzero(self.policy.fitted.cpu().numpy()))
 
+    def _load_source_transitions(self) -> None:
+        """Load the ``source_transitions`` of the constructor into the shared buffer, once."""
+        if self.source_transitions is None or self._source_loaded:
+            return
+        if isinstance(self.source_transitions, int):
+            assert self.env is not None, "source_transitions needs an env"
+            spec = self.env.get_attr("spec", indices=0)[0]
+            if spec is None:
+                raise ValueError(
+                    "source_transitions=<number> collects them from a copy of the env made with gym.make, "
+                    "but this env has no spec: pass the path of a saved .npz instead"
+                )
+            # The spec without the wrappers added after gym.make (SB3's Monitor cannot be recreated).
+            source_env = gym.make(dataclasses.replace(spec, additional_wrappers=()))
+            seed = self.source_seed if self.source_seed is not None else self.seed
+            data = collect_transitions(source_env, self.source_transitions, seed=seed)
+            source_env.close()
+        else:
+            data = Transitions.load(self.source_transitions)
+        self.load_transitions(data, keep_rewards=False)
+        self._source_loaded = True
+
     # ------------------------------------------------------------ online loop
     def _sample_action(
         self, learning_starts: int, action_noise: ActionNoise | None = None, n_envs: int = 1
@@ -285,10 +344,14 @@ class TRLSD(OffPolicyAlgorithm):
         """Feed the transition just stored to its task's reward head and check the refit trigger."""
         buffer = self.replay_buffer
         row = (buffer.pos - 1) % buffer.buffer_size
-        for state, reward, task in zip(
-            buffer.observations[row], buffer.rewards[row], buffer.tasks[row], strict=True
+        for state, reward, task, done in zip(
+            buffer.observations[row], buffer.rewards[row], buffer.tasks[row], buffer.dones[row], strict=True
         ):
             self._observe_reward(state, reward, int(task))
+            trail = self._online_trail.setdefault(int(task), deque(maxlen=PICTURE_TRAIL))
+            trail.append(np.asarray(state, dtype=np.float64))
+            if done:
+                trail.append(np.full(np.shape(state), np.nan))  # the blue line breaks at resets
 
     def _observe_reward(self, state: np.ndarray, reward: float, task: int) -> None:
         """Update the reward head of ``task`` with one online sample and mark the task due if it triggers."""
@@ -395,6 +458,65 @@ class TRLSD(OffPolicyAlgorithm):
             # The optimism actually applied: mean of R~ - R^ over the relabelled set.
             optimism = transitions.rewards - head.estimate(transitions.states)
             self.logger.record("reward/ci_mean", float(np.mean(optimism)))
+        if self._picture_due(task):
+            trail = np.array(self._online_trail.get(task, ()), dtype=np.float64).reshape(-1, 2)
+            self.logger.record(
+                f"pictures/task_{task}",
+                Image(task_picture(self, task, trail), "HWC"),
+                exclude=("stdout", "log", "json", "csv"),
+            )
+
+    def _picture_due(self, task: int) -> bool:
+        """A picture at a task's first refit, then every ``log_picture_every`` (TensorBoard on the maze)."""
+        updates = self.policy_updates[task]
+        if not self.log_picture_every or (updates != 1 and updates % self.log_picture_every):
+            return False
+        if not any(isinstance(output, TensorBoardOutputFormat) for output in self.logger.output_formats):
+            return False
+        return self.env is not None and self.env.has_attr("walls") and self.features.centres.shape[1] == 2
+
+    def _setup_learn(
+        self,
+        total_timesteps: int,
+        callback: MaybeCallback = None,
+        reset_num_timesteps: bool = True,
+        tb_log_name: str = "run",
+        progress_bar: bool = False,
+    ) -> tuple[int, BaseCallback]:
+        total_timesteps, callback = super()._setup_learn(
+            total_timesteps, callback, reset_num_timesteps, tb_log_name, progress_bar
+        )
+        self.logger.record(
+            "hparams",
+            HParam(self.hyperparameters(), {"rollout/ep_rew_mean": 0.0, "train/policy_updates": 0.0}),
+            exclude=("stdout", "log", "json", "csv"),
+        )
+        return total_timesteps, callback
+
+    def hyperparameters(self) -> dict[str, int | float | str | bool]:
+        """The settings of this run, as TensorBoard's HParams tab shows them."""
+        settings = {
+            "algorithm": type(self).__name__,
+            "policy": self.policy_class.__name__,
+            "gamma": self.gamma,
+            "reward_head": self.reward_head
+            if isinstance(self.reward_head, str)
+            else type(self.reward_head).__name__,
+            "kappa": self.kappa,
+            "sigma": self.sigma,
+            "similarity": self.similarity,
+            "update_ratio": self.update_ratio,
+            "fqi_max_iterations": self.fqi_max_iterations,
+            "fqi_tol": self.fqi_tol,
+            "rbf_per_dim": self.rbf_per_dim,
+            "rbf_sigma": self.rbf_sigma,
+            "source_transitions": self.source_transitions,
+            "seed": self.seed,
+        }
+        return {
+            key: value if isinstance(value, (int, float, bool)) else str(value)
+            for key, value in settings.items()
+        }
 
     def learn(
         self: SelfTRLSD,
@@ -405,7 +527,8 @@ class TRLSD(OffPolicyAlgorithm):
         reset_num_timesteps: bool = True,
         progress_bar: bool = False,
     ) -> SelfTRLSD:
-        return super().learn(
+        self._load_source_transitions()
+        super().learn(
             total_timesteps=total_timesteps,
             callback=callback,
             log_interval=log_interval,
@@ -413,3 +536,6 @@ class TRLSD(OffPolicyAlgorithm):
             reset_num_timesteps=reset_num_timesteps,
             progress_bar=progress_bar,
         )
+        # SB3 dumps the logs every log_interval episodes: a run's last values (and pictures) are kept too.
+        self.dump_logs()
+        return self

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 from stable_baselines3.common.callbacks import BaseCallback
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+from tensorboard.backend.event_processing.event_file_loader import EventFileLoader
 
 from envs.maze import N_TASKS
 from sb3_trlsd import TRLSD, Transitions
@@ -51,6 +52,63 @@ def test_learn_relabels_fits_and_logs_to_tensorboard(source_transitions, tmp_pat
         "rollout/ep_rew_mean",
     }
     assert expected <= tags
+
+
+def test_learn_logs_pictures_and_hyperparameters_to_tensorboard(tmp_path):
+    """The maze's picture of a task at its first refit and every log_picture_every refits, and the HParams."""
+    model = TRLSD(
+        "LinearPolicy",
+        gym.make(MAZE_ID, task=(1, 5)),
+        source_transitions=500,
+        log_picture_every=3,
+        tensorboard_log=str(tmp_path),
+        seed=0,
+    )
+    model.learn(total_timesteps=60)
+    pictures, hparams = [], set()
+    for event_file in tmp_path.rglob("events.out.tfevents.*"):
+        for event in EventFileLoader(str(event_file)).Load():
+            for value in event.summary.value:
+                if value.tag == "pictures/task_4":
+                    pictures.append(value.tensor.string_val)  # width, height, PNG bytes
+                if value.metadata.plugin_data.plugin_name == "hparams":
+                    hparams.add(value.tag)
+    # One picture per dump at most (later records of a tag replace earlier ones before the dump).
+    assert 1 <= len(pictures) <= model.policy_updates[4] // 3 + 1
+    width, height, png = pictures[0]
+    assert (int(height), int(width)) == (360, 720)
+    assert png.startswith(b"\x89PNG")
+    assert "_hparams_/experiment" in hparams
+    assert model.hyperparameters()["kappa"] == 0.1
+
+
+def test_source_transitions_are_collected_from_a_copy_of_the_env_or_loaded_from_a_file(tmp_path):
+    """The config-file way of giving the source set: seeded, loaded once, rewards discarded."""
+    env = gym.make(MAZE_ID, task=(2, 2))
+    first = TRLSD("LinearPolicy", env, source_transitions=400, seed=3)
+    first.learn(total_timesteps=10)
+    second = TRLSD("LinearPolicy", gym.make(MAZE_ID, task=(2, 2)), source_transitions=400, seed=3)
+    second.learn(total_timesteps=10)
+    rows = first.replay_buffer.transitions()
+    np.testing.assert_array_equal(rows.states, second.replay_buffer.transitions().states)
+    assert len(rows) == 410
+    assert first.reward_heads[6].n_samples == 10  # tau_22's own online samples: source rewards discarded
+    first.learn(total_timesteps=10, reset_num_timesteps=False)
+    assert first.replay_buffer.size() == 420  # not collected again
+
+    path = tmp_path / "source.npz"
+    Transitions(
+        states=rows.states[:400],
+        actions=rows.actions[:400],
+        next_states=rows.next_states[:400],
+        rewards=rows.rewards[:400],
+        tasks=rows.tasks[:400],
+        truncations=rows.truncations[:400],
+        terminations=rows.terminations[:400],
+    ).save(path)
+    from_file = TRLSD("LinearPolicy", gym.make(MAZE_ID, task=(2, 2)), source_transitions=str(path), seed=3)
+    from_file.learn(total_timesteps=10)
+    np.testing.assert_array_equal(from_file.replay_buffer.transitions().states, rows.states)
 
 
 def test_smaller_update_ratio_triggers_more_policy_updates(source_transitions):
@@ -163,8 +221,20 @@ def test_multi_task_env_triggers_each_task_on_its_own():
         ({"update_ratio": 1.0}, "update_ratio"),
         ({"reward_head": "gaussian-process"}, "reward_head"),
         ({"similarity": "cosine"}, "similarity"),
+        ({"source_transitions": 0}, "source_transitions"),
+        ({"source_transitions": 2.5}, "source_transitions"),
+        ({"log_picture_every": -1}, "log_picture_every"),
     ],
-    ids=["negative-kappa", "zero-sigma", "update-ratio-1", "unknown-head", "unknown-similarity"],
+    ids=[
+        "negative-kappa",
+        "zero-sigma",
+        "update-ratio-1",
+        "unknown-head",
+        "unknown-similarity",
+        "no-source",
+        "fractional-source",
+        "negative-picture-period",
+    ],
 )
 def test_bad_hyperparameters_are_refused_by_name(kwargs, argument):
     """Each bad setting raises a ValueError naming the argument at construction."""
