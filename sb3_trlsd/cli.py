@@ -15,6 +15,8 @@ from sb3_trlsd.experiments import FIGURES
 
 __all__ = ["main"]
 
+ZOO_SCRIPTS = ("train", "enjoy")  # subcommands passed on, unchanged, to the RL Zoo
+
 
 def parse_task(text: str) -> int | tuple[int, int]:
     """``"1,5"`` -> (1, 5) (the paper's tau_15); ``"4"`` -> task index 4."""
@@ -116,11 +118,23 @@ def build_parser() -> argparse.ArgumentParser:
         "--workers", type=positive_int, default=os.cpu_count() or 1, help="processes (default: %(default)s)"
     )
     reproduce.set_defaults(run=reproduce_command)
+    for script in ZOO_SCRIPTS:
+        # Listed for --help; main() hands their arguments to the Zoo before this parser sees them.
+        commands.add_parser(
+            script,
+            help=f"the RL Zoo's {script} with --algo trlsd available (arguments as rl_zoo3 {script})",
+            add_help=False,
+        )
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``sb3-trlsd`` console script."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv and argv[0] in ZOO_SCRIPTS:
+        from sb3_trlsd.zoo import run_zoo
+
+        return run_zoo(argv[0], argv[1:])
     args = build_parser().parse_args(argv)
     try:
         return args.run(args)

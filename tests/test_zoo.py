@@ -1,0 +1,93 @@
+"""``sb3-trlsd train`` / ``enjoy`` through the RL Zoo, with every config of ``zoo_configs/``, small sizes."""
+
+import sys
+from pathlib import Path
+
+import pytest
+import yaml
+from tensorboard.backend.event_processing.event_file_loader import EventFileLoader
+
+from envs import MAZE_ID
+from sb3_trlsd import TRLSD
+from sb3_trlsd.cli import main
+
+optuna = pytest.importorskip("optuna")
+pytest.importorskip("rl_zoo3")
+
+CONFIG_DIR = Path(__file__).parents[1] / "zoo_configs"
+CONFIGS = sorted(CONFIG_DIR.glob("*.yml"))
+ALGORITHM_SCALARS = {
+    "train/policy_updates",
+    "train/fqi_iterations",
+    "train/bellman_residual",
+    "reward/ci_mean",
+    "reward/target_samples",
+}
+
+
+def event_tags(directory: Path) -> dict[str, set[str]]:
+    """Tags of every TensorBoard event file under ``directory``, by plugin (scalars, images, hparams)."""
+    tags: dict[str, set[str]] = {}
+    for event_file in directory.rglob("events.out.tfevents.*"):
+        for event in EventFileLoader(str(event_file)).Load():
+            for value in event.summary.value:
+                tags.setdefault(value.metadata.plugin_data.plugin_name, set()).add(value.tag)
+    return tags
+
+
+def test_every_paper_setting_has_a_config():
+    assert {path.stem for path in CONFIGS} == {
+        "known_reward",
+        "continuous",
+        "discrete",
+        "corners",
+        "non_optimistic",
+        "multitask",
+    }
+
+
+@pytest.mark.parametrize("config", CONFIGS, ids=lambda path: path.stem)
+def test_train_then_enjoy_each_config(config, tmp_path, capsys):
+    logs, tensorboard = tmp_path / "logs", tmp_path / "tb"
+    arguments = ["train", "--algo", "trlsd", "--env", MAZE_ID, "-conf", str(config), "-n", "60"]
+    arguments += ["--seed", "0", "-f", str(logs), "--tensorboard-log", str(tensorboard)]
+    has_source = "source_transitions" in yaml.safe_load(config.read_text())[MAZE_ID]
+    if has_source:
+        # The paper's 25,000 source transitions, shrunk through the Zoo's own override of a config value.
+        arguments += ["-params", "source_transitions:500"]
+    status = main(arguments)
+    assert status == 0
+    (saved,) = logs.glob("trlsd/*_1/*.zip")
+    model = TRLSD.load(saved)
+    assert sum(model.policy_updates.values()) >= 1
+    assert model.source_transitions == (500 if has_source else None)
+    tags = event_tags(tensorboard)
+    assert tags["scalars"] >= ALGORITHM_SCALARS
+    assert any(tag.startswith("pictures/task_") for tag in tags["images"])
+    assert "_hparams_/experiment" in tags["hparams"]
+
+    status = main(["enjoy", "--algo", "trlsd", "--env", MAZE_ID, "-f", str(logs), "-n", "20", "--no-render"])
+    assert status == 0
+    assert "Loading" in capsys.readouterr().out
+
+
+def test_optimize_shares_a_sqlite_study(tmp_path):
+    storage = f"sqlite:///{tmp_path / 'study.db'}"
+    arguments = ["train", "--algo", "trlsd", "--env", MAZE_ID, "-conf", str(CONFIG_DIR / "continuous.yml")]
+    arguments += ["-n", "40", "-f", str(tmp_path / "logs"), "-optimize", "--n-trials", "2", "--n-jobs", "1"]
+    arguments += ["--sampler", "random", "--pruner", "none", "--storage", storage, "--study-name", "maze"]
+    arguments += ["--n-evaluations", "1", "--eval-episodes", "1", "--no-optim-plots"]
+    arguments += ["-params", "source_transitions:300", "--seed", "0"]
+    assert main(arguments) == 0
+    study = optuna.load_study(study_name="maze", storage=storage)
+    trials = [trial for trial in study.trials if trial.state == optuna.trial.TrialState.COMPLETE]
+    assert len(trials) == 2
+    assert set(trials[0].params) == {"kappa", "sigma", "update_ratio", "gamma"}
+
+
+def test_without_the_zoo_train_says_how_to_install_it(monkeypatch, capsys):
+    monkeypatch.setitem(sys.modules, "rl_zoo3", None)  # import rl_zoo3 now raises ImportError
+    assert main(["train", "--algo", "trlsd", "--env", MAZE_ID]) != 0
+    error = capsys.readouterr().err.strip()
+    assert "\n" not in error
+    assert "pip install 'sb3-trlsd[zoo]'" in error
