@@ -90,7 +90,7 @@ def task_picture(
         title=f"optimism R~ - R^ (max {bonus.max():.2f})",
     )
     for ax in (left, right):
-        ax.title.set_fontsize(9)
-    figure.subplots_adjust(left=0.01, right=0.99, bottom=0.01, top=0.91, wspace=0.04)
+        ax.title.set_fontsize(14)
+    figure.subplots_adjust(left=0.01, right=0.99, bottom=0.01, top=0.9, wspace=0.04)
     canvas.draw()
     return np.asarray(canvas.buffer_rgba())[..., :3].copy()
