@@ -92,8 +92,9 @@ def write_transfer_figure(
     figure, axes = new_figure(len(panels) + (picture is not None))
     if picture is not None:
         draw_snapshot(axes.pop(0), *picture)
+    colors = {label: f"C{index}" for index, label in enumerate(curves)}  # one color per method, all panels
     for ax, (panel_title, labels) in zip(axes, panels, strict=True):
-        plot_curves(ax, {label: curves[label] for label in labels}, smooth=CURVE_SMOOTHING)
+        plot_curves(ax, {label: curves[label] for label in labels}, smooth=CURVE_SMOOTHING, colors=colors)
         ax.set_title(panel_title)
     save_figure(figure, out / f"{name}.png", title)
     results = {

@@ -90,6 +90,7 @@ def plot_curves(
     smooth: int = 1,
     xlabel: str = "transitions",
     ylabel: str = "average reward",
+    colors: Mapping[str, str] | None = None,
 ) -> None:
     """
     Mean curves with a band of one standard error, as in the paper's Figures 5, 6 and 8.
@@ -99,11 +100,13 @@ def plot_curves(
     :param smooth: each run is first averaged over a trailing window of this many points
     :param xlabel: x axis label
     :param ylabel: y axis label
+    :param colors: label -> matplotlib color, to keep a method's color across panels (default: cycle)
     """
     for label, values in curves.items():
         mean, se = mean_and_standard_error(moving_average(values, smooth))
         x = np.arange(len(mean))
-        (line,) = ax.plot(x, mean, label=f"{label} ({len(values)} runs)", linewidth=1.5)
+        color = None if colors is None else colors.get(label)
+        (line,) = ax.plot(x, mean, label=f"{label} ({len(values)} runs)", linewidth=1.5, color=color)
         ax.fill_between(x, mean - se, mean + se, color=line.get_color(), alpha=0.25, linewidth=0)
     ax.set_xlabel(xlabel)
     ax.set_ylabel(ylabel + (f" (moving average over {smooth})" if smooth > 1 else ""))
