@@ -20,6 +20,7 @@ prints its wall time; otherwise that time is estimated from the seconds per run 
 from __future__ import annotations
 
 import argparse
+import inspect
 import tempfile
 import time
 
@@ -28,13 +29,14 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from envs import MAZE_ID, expected_reward
-from sb3_trlsd import collect_transitions
+from sb3_trlsd import TRLSD, collect_transitions
 from sb3_trlsd.experiments import reproduce
 from sb3_trlsd.experiments.runner import Method, transfer_run
 from sb3_trlsd.experiments.transfer import DEFAULT_RUNS, METHODS
 from sb3_trlsd.features import grid_centres, rbf_features
 
-GAMMA, KAPPA, SIGMA, RBF_SIGMA, UPDATE_RATIO, RIDGE, TOL = 0.9, 0.1, 0.2, 0.2, 2.0, 1e-3, 1e-6
+GAMMA, KAPPA, SIGMA, RBF_SIGMA, UPDATE_RATIO, RIDGE = 0.9, 0.1, 0.2, 0.2, 2.0, 1e-3
+TOL = inspect.signature(TRLSD).parameters["fqi_tol"].default  # the same stopping rule as the fast path
 
 
 def straightforward_run(

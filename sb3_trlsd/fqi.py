@@ -10,10 +10,11 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
+import numpy.typing as npt
 import torch as th
 from scipy.linalg import cho_factor, cho_solve
 
-from sb3_trlsd.arrays import GrowableArray
+from sb3_trlsd.arrays import GrowableColumns
 
 __all__ = [
     "LinearFQIResult",
@@ -99,14 +100,15 @@ def bellman_targets(
     return rewards + gamma * np.where(terminated, 0.0, bootstrap)  # eq. 1
 
 
-class _StackedTransitions(NamedTuple):
-    """The stored transitions sorted by action, as the iterations use them (built once per ``extend``)."""
+class _ActionBlock(NamedTuple):
+    """The transitions of one action as the iterations use them, and the inverse of its Gram matrix."""
 
-    next_phi_t: np.ndarray  # Phi(s')^T of every transition, columns grouped by action, (k, n)
-    terminated: np.ndarray  # (n,) bool, same order
-    order: np.ndarray  # row of each column in the order of extend calls, (n,) int
-    # Per action with samples: (a, its columns as a slice, X_a (n_a, k), (X_a^T X_a + ridge I)^-1 (k, k))
-    blocks: list[tuple[int, slice, np.ndarray, np.ndarray]]
+    action: int
+    phi_t: np.ndarray  # X_a^T, (k, n_a)
+    next_phi_t: np.ndarray  # Phi(s')^T, (k, n_a)
+    terminated: np.ndarray  # (n_a,) bool
+    rows: np.ndarray  # row of each column in the order of extend calls, (n_a,) int
+    inverse: np.ndarray  # (X_a^T X_a + ridge I)^-1, (k, k), float64
 
 
 class LinearFQISolver:
@@ -117,37 +119,49 @@ class LinearFQISolver:
 
     Q(s, a) = theta_a . Phi(s) (eq. 3). Since Phi(s, a) is block-diagonal in the actions, the projection of
     eq. 4 splits into one ridge regression per action, theta_a = (X_a^T X_a + ridge I)^-1 X_a^T y_a. The
-    rows of each action are stored contiguously and X_a^T X_a + ridge I is kept as a running sum over
-    ``extend`` calls, its inverse (k x k, from a Cholesky factorisation) cached until the next ``extend``:
-    a fit only recomputes the targets y and multiplies.
+    transitions of each action are stored as columns that grow in place (an ``extend`` copies only the new
+    ones), and X_a^T X_a + ridge I is kept as a running sum, its inverse (k x k, from a Cholesky
+    factorisation) cached until the action gets new rows: a fit only recomputes the targets y and
+    multiplies.
 
     :param n_features: k, the width of Phi(s)
     :param n_actions: number of actions
     :param ridge: Tikhonov regularisation of each per-action projection (> 0), which keeps it well posed
         where a feature has (almost) no sample of an action. The default 1e-3 is negligible next to the
         Gram diagonal of the maze's RBFs (~30 with 6,500 samples per action), so it barely biases theta
+    :param dtype: precision of the stored features and of the targets: ``np.float64`` (default), or
+        ``np.float32``, which halves the memory the iterations read (they are bound by it) at the cost of
+        ~1e-6 relative rounding in theta; the Gram matrices, their inverses and theta stay float64
     """
 
-    def __init__(self, n_features: int, n_actions: int, ridge: float = DEFAULT_RIDGE):
+    def __init__(
+        self,
+        n_features: int,
+        n_actions: int,
+        ridge: float = DEFAULT_RIDGE,
+        dtype: npt.DTypeLike = np.float64,
+    ):
         if not n_features >= 1 or not n_actions >= 1:
             raise ValueError(f"n_features and n_actions must be >= 1, got {n_features} and {n_actions}")
         if not ridge > 0:
             raise ValueError(f"ridge must be > 0 (it keeps each projection well posed), got {ridge}")
+        self.dtype = np.dtype(dtype)
+        if self.dtype not in (np.float32, np.float64):
+            raise ValueError(f"dtype must be float32 or float64, got {self.dtype}")
         self.n_features, self.n_actions, self.ridge = int(n_features), int(n_actions), float(ridge)
         k = self.n_features
-        self._phi = [GrowableArray(k) for _ in range(n_actions)]  # X_a, (n_a, k)
-        self._next_phi = [GrowableArray(k) for _ in range(n_actions)]  # Phi(s') of those rows, (n_a, k)
-        self._terminated = [GrowableArray(1) for _ in range(n_actions)]  # (n_a, 1), 1.0 if absorbing
-        # Row of each transition in the order of extend calls, as float64 (exact below 2^53).
-        self._rows = [GrowableArray(1) for _ in range(n_actions)]
+        self._phi_t = [GrowableColumns(k, self.dtype) for _ in range(n_actions)]
+        self._next_phi_t = [GrowableColumns(k, self.dtype) for _ in range(n_actions)]
+        self._terminated = [GrowableColumns(1, bool) for _ in range(n_actions)]
+        self._rows = [GrowableColumns(1, np.int64) for _ in range(n_actions)]
         self._gram = np.tile(self.ridge * np.eye(k), (n_actions, 1, 1))  # X_a^T X_a + ridge I, (A, k, k)
-        self._stacked: _StackedTransitions | None = None  # built by _stack, reset by extend
+        self._inverse: list[np.ndarray | None] = [None] * n_actions  # cached until the action grows
         self.n_transitions = 0
 
     def __repr__(self) -> str:
         return (
             f"LinearFQISolver(n_features={self.n_features}, n_actions={self.n_actions}, "
-            f"ridge={self.ridge:g}, n_transitions={self.n_transitions})"
+            f"ridge={self.ridge:g}, dtype={self.dtype.name}, n_transitions={self.n_transitions})"
         )
 
     def extend(
@@ -176,42 +190,49 @@ class LinearFQISolver:
         if n and (actions.min() < 0 or actions.max() >= self.n_actions or np.any(actions % 1)):
             raise ValueError(f"actions must be integers in 0..{self.n_actions - 1}")
         actions = actions.astype(np.int64)
+        stored_phi, stored_next_phi = self._storable(phi), self._storable(next_phi)
         for a in range(self.n_actions):
             rows = np.flatnonzero(actions == a)
             if not len(rows):
                 continue
             block = phi[rows]  # (n_a, k)
             self._gram[a] += block.T @ block
-            self._phi[a].append(block)
-            self._next_phi[a].append(next_phi[rows])
-            self._terminated[a].append(terminated[rows, None])
-            self._rows[a].append(self.n_transitions + rows[:, None])
-        self._stacked = None
+            self._inverse[a] = None
+            self._phi_t[a].append(stored_phi[rows].T)
+            self._next_phi_t[a].append(stored_next_phi[rows].T)
+            self._terminated[a].append(terminated[rows])
+            self._rows[a].append(self.n_transitions + rows)
         self.n_transitions += n
 
-    def _stack(self) -> _StackedTransitions:
+    def _storable(self, features: np.ndarray) -> np.ndarray:
         """
-        One (k, n) array of next features for all actions, so that an iteration computes Q(s', .) with one
-        product, and each action's inverted Gram matrix.
+        Features in the storage precision. In float32, values below its smallest normal number (RBFs far
+        from their centre reach 1e-40) are flushed to zero: subnormal operands make every product an order
+        of magnitude slower.
         """
-        if self._stacked is None:
-            actions = [a for a in range(self.n_actions) if len(self._phi[a])]
-            blocks, start = [], 0
-            for a in actions:
-                phi = self._phi[a].view()
-                inverse = cho_solve(cho_factor(self._gram[a]), np.eye(self.n_features))
-                blocks.append((a, slice(start, start + len(phi)), phi, inverse))
-                start += len(phi)
-            self._stacked = _StackedTransitions(
-                # Contiguous (k, n): theta @ next_phi_t is twice as fast as with a transposed view.
-                next_phi_t=np.ascontiguousarray(
-                    np.concatenate([self._next_phi[a].view() for a in actions]).T
-                ),
-                terminated=np.concatenate([self._terminated[a].view()[:, 0] > 0 for a in actions]),
-                order=np.concatenate([self._rows[a].view()[:, 0] for a in actions]).astype(np.int64),
-                blocks=blocks,
+        if self.dtype == np.float64:
+            return features
+        return np.where(np.abs(features) < np.finfo(self.dtype).tiny, 0.0, features).astype(self.dtype)
+
+    def _blocks(self) -> list[_ActionBlock]:
+        """The actions with samples, their columns and inverted Gram matrices."""
+        blocks = []
+        for a in range(self.n_actions):
+            if not len(self._rows[a]):
+                continue
+            if self._inverse[a] is None:
+                self._inverse[a] = cho_solve(cho_factor(self._gram[a]), np.eye(self.n_features))
+            blocks.append(
+                _ActionBlock(
+                    action=a,
+                    phi_t=self._phi_t[a].view(),
+                    next_phi_t=self._next_phi_t[a].view(),
+                    terminated=self._terminated[a].view()[0],
+                    rows=self._rows[a].view()[0],
+                    inverse=self._inverse[a],
+                )
             )
-        return self._stacked
+        return blocks
 
     def fit(
         self,
@@ -229,7 +250,9 @@ class LinearFQISolver:
         :param gamma: discount factor in [0, 1)
         :param theta0: warm start, (n_actions, k); zeros if None. Actions without samples keep it
         :param max_iterations: cap on the iterations (>= 1)
-        :param tol: stop when max |theta_new - theta| <= tol * (1 + max |theta_new|)
+        :param tol: stop when max |theta_new - theta| <= tol * (1 + max |theta_new|); with float32 storage,
+            a tol below 64 float32 epsilons (7.6e-6), which rounding would never let the iterations meet, is
+            raised to it
         :return: theta, iterations run and the RMS Bellman residual
         """
         rewards = np.asarray(rewards, dtype=np.float64)
@@ -248,30 +271,34 @@ class LinearFQISolver:
             raise ValueError(f"theta0 must have shape {shape}, got {theta.shape}")
         if not self.n_transitions:
             return LinearFQIResult(theta=theta, iterations=0, bellman_residual=0.0)
+        tol = max(tol, 64 * float(np.finfo(self.dtype).eps))
 
-        stacked = self._stack()
-        stacked_rewards = rewards[stacked.order]  # r in the stacked order, (n,)
+        blocks = self._blocks()
+        block_rewards = [rewards[block.rows].astype(self.dtype) for block in blocks]
         bounds = return_bounds(rewards, gamma)
 
-        def targets_of(theta: np.ndarray) -> np.ndarray:
-            # y = r + gamma max_a' theta_a' . Phi(s') (eq. 4), Q(s', .) as the transpose of (A, n)
-            return bellman_targets(
-                stacked_rewards, (theta @ stacked.next_phi_t).T, stacked.terminated, gamma, bounds
-            )
+        def targets_of(theta: np.ndarray) -> list[np.ndarray]:
+            # y = r + gamma max_a' theta_a' . Phi(s') (eq. 4), per action block, Q(s', .) as (A, n_a)^T
+            theta = theta.astype(self.dtype, copy=False)
+            return [
+                bellman_targets(r, (theta @ block.next_phi_t).T, block.terminated, gamma, bounds)
+                for block, r in zip(blocks, block_rewards, strict=True)
+            ]
 
         targets = targets_of(theta)
         iterations = 0
         for iterations in range(1, max_iterations + 1):  # noqa: B007 (the count is returned)
             new_theta = theta.copy()
-            for a, columns, phi, inverse in stacked.blocks:
-                new_theta[a] = inverse @ (phi.T @ targets[columns])  # eq. 4, block a
+            for block, y in zip(blocks, targets, strict=True):
+                new_theta[block.action] = block.inverse @ (block.phi_t @ y)  # eq. 4, block a
             change = np.abs(new_theta - theta).max()
             theta = new_theta
             targets = targets_of(theta)
             if change <= tol * (1.0 + np.abs(theta).max()):
                 break
         squared_error = sum(
-            float(np.sum((targets[columns] - phi @ theta[a]) ** 2)) for a, columns, phi, _ in stacked.blocks
+            float(np.sum((y - theta[block.action].astype(self.dtype) @ block.phi_t) ** 2, dtype=np.float64))
+            for block, y in zip(blocks, targets, strict=True)
         )
         residual = float(np.sqrt(squared_error / self.n_transitions))
         return LinearFQIResult(theta=theta, iterations=iterations, bellman_residual=residual)

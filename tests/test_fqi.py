@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 import torch as th
 
+from sb3_trlsd.arrays import GrowableColumns
 from sb3_trlsd.fqi import (
     LinearFQISolver,
     fit_linear_fqi,
@@ -145,6 +146,45 @@ def test_solver_grown_in_chunks_refits_other_rewards_like_a_fresh_fit():
         refit = solver.fit(rewards, gamma=GAMMA)
         np.testing.assert_allclose(refit.theta, fresh.theta, rtol=1e-9, atol=1e-12)
         assert refit.iterations == fresh.iterations
+
+
+def test_float32_storage_fits_the_float64_theta_within_its_rounding():
+    """
+    Storing the features in float32 changes theta by float32 rounding only (~1e-7 relative, amplified by the
+    condition number of the Gram matrices: here checked at 1e-3 of theta's scale), subnormal features are
+    flushed to zero, and a tol float32 cannot meet is raised.
+    """
+    rng = np.random.default_rng(5)
+    n, k = 3000, 6
+    phi, next_phi = rng.uniform(size=(n, k)), rng.uniform(size=(n, k))
+    phi[:, 0] = 1e-40  # an RBF far from its centre: subnormal in float32
+    actions, terminated = rng.integers(3, size=n), rng.random(n) < 0.1
+    rewards = rng.uniform(-1, 1, size=n)
+    fits = {}
+    for dtype in (np.float64, np.float32):
+        solver = LinearFQISolver(k, 3, ridge=1e-3, dtype=dtype)
+        solver.extend(phi, actions, next_phi, terminated)
+        fits[dtype] = solver.fit(rewards, gamma=GAMMA, tol=1e-12, max_iterations=300)
+        assert solver._phi_t[0].view().dtype == dtype
+    assert np.all(solver._phi_t[0].view()[0] == 0)  # flushed, not subnormal
+    scale = np.abs(fits[np.float64].theta).max()
+    np.testing.assert_allclose(fits[np.float32].theta, fits[np.float64].theta, atol=1e-3 * scale)
+    assert fits[np.float64].iterations > fits[np.float32].iterations  # tol 1e-12 raised to 64 eps in float32
+    with pytest.raises(ValueError, match="dtype"):
+        LinearFQISolver(k, 3, dtype=np.int32)
+
+
+def test_growable_columns_keep_appended_columns_in_order():
+    """Columns appended past the capacity (16, then doubled) come back in order, rows contiguous."""
+    columns = GrowableColumns(3, np.float32)
+    chunks = [np.arange(3 * m, dtype=float).reshape(3, m) + 100 * i for i, m in enumerate((5, 20, 1, 40))]
+    for chunk in chunks:
+        columns.append(chunk)
+    np.testing.assert_array_equal(columns.view(), np.concatenate(chunks, axis=1).astype(np.float32))
+    assert len(columns) == 66 and columns.view().strides[1] == 4
+    flags = GrowableColumns(1, bool)
+    flags.append(np.array([True, False, True]))
+    np.testing.assert_array_equal(flags.view()[0], [True, False, True])
 
 
 def test_an_empty_solver_returns_its_warm_start():
