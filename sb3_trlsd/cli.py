@@ -6,6 +6,7 @@ import argparse
 import os
 import sys
 from collections.abc import Sequence
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -79,8 +80,9 @@ def reproduce_command(args: argparse.Namespace) -> int:
     from sb3_trlsd.experiments.reporting import results_table
 
     figures = list(FIGURES) if args.figure == "all" else [args.figure]
+    cache = None if args.no_cache else Path(args.cache or os.path.join(args.out, "runs"))
     for figure in figures:
-        data = reproduce(figure, args.out, runs=args.runs, seed=args.seed, workers=args.workers)
+        data = reproduce(figure, args.out, runs=args.runs, seed=args.seed, workers=args.workers, cache=cache)
         files = ", ".join(
             os.path.join(os.path.abspath(args.out), f"{figure}.{ext}") for ext in ("png", "csv", "json")
         )
@@ -117,6 +119,17 @@ def build_parser() -> argparse.ArgumentParser:
     reproduce.add_argument(
         "--workers", type=positive_int, default=os.cpu_count() or 1, help="processes (default: %(default)s)"
     )
+    run_cache = reproduce.add_mutually_exclusive_group()
+    run_cache.add_argument(
+        "--cache",
+        type=writable_directory,
+        default=None,
+        metavar="DIR",
+        help="directory of finished runs (default: OUT/runs; a killed reproduction resumes from there): "
+        "finished runs are kept there and reused when the same command is run again with the same code; "
+        "--no-cache turns it off",
+    )
+    run_cache.add_argument("--no-cache", action="store_true", help="keep no finished runs and reuse none")
     reproduce.set_defaults(run=reproduce_command)
     for script in ZOO_SCRIPTS:
         # Listed for --help; main() hands their arguments to the Zoo before this parser sees them.

@@ -1,7 +1,12 @@
-"""The experiments' fast path against ``TRLSD.learn``, and the ``reproduce`` command on tiny sizes."""
+"""
+The experiments' fast path against ``TRLSD.learn``, the cache of finished runs, and the ``reproduce``
+command on tiny sizes.
+"""
 
 import csv
 import json
+import os
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -11,14 +16,17 @@ from matplotlib.image import imread
 from envs import MAZE_ID, expected_reward
 from sb3_trlsd import collect_transitions
 from sb3_trlsd.cli import main
-from sb3_trlsd.experiments import FIGURES, multitask, runner
+from sb3_trlsd.experiments import FIGURES, multitask, run_cache, runner
 from sb3_trlsd.experiments.reporting import (
     mean_and_standard_error,
     moving_average,
     results_table,
     window_means,
 )
-from sb3_trlsd.experiments.runner import Method, multitask_run, transfer_run
+from sb3_trlsd.experiments.run_cache import run_key
+from sb3_trlsd.experiments.runner import Method, RunRecord, multitask_run, run_jobs, transfer_run
+
+CALL_LOG_VARIABLE = "SB3_TRLSD_TEST_CALL_LOG"  # file where counted_transfer_run writes the seed of each call
 
 
 @pytest.mark.parametrize(
@@ -74,6 +82,98 @@ def test_reporting_statistics_match_numpy():
     np.testing.assert_allclose(moving_average(np.array([1.0, 3.0, 5.0, 7.0]), 2), [1, 2, 4, 6])
 
 
+def counted_transfer_run(*args: Any, **kwargs: Any) -> RunRecord:
+    """``transfer_run``, writing its seed to the file ``$SB3_TRLSD_TEST_CALL_LOG`` (workers can write it)."""
+    with open(os.environ[CALL_LOG_VARIABLE], "a") as log:
+        log.write(f"{args[2]}\n")
+    return transfer_run(*args, **kwargs)
+
+
+@pytest.fixture
+def called_seeds(tmp_path, monkeypatch):
+    """A function returning the seeds ``counted_transfer_run`` has been called with so far, in order."""
+    log = tmp_path / "calls.txt"
+    log.touch()
+    monkeypatch.setenv(CALL_LOG_VARIABLE, str(log))
+    return lambda: [int(line) for line in log.read_text().split()]
+
+
+def small_jobs(tasks_and_seeds, **kwargs) -> list[tuple[tuple, dict]]:
+    """Jobs of ``counted_transfer_run``: 300 source and 30 online transitions of the ridge head."""
+    return [
+        ((Method("ridge"), task, seed), {"n_source": 300, "n_online": 30, **kwargs})
+        for task, seed in tasks_and_seeds
+    ]
+
+
+def assert_same_records(records: list[RunRecord], expected: list[RunRecord]) -> None:
+    assert len(records) == len(expected)
+    for record, other in zip(records, expected, strict=True):
+        np.testing.assert_array_equal(record.rewards, other.rewards)
+        np.testing.assert_array_equal(record.tasks, other.tasks)
+        assert (record.policy_updates, record.seconds) == (other.policy_updates, other.seconds)
+        assert len(record.snapshots) == len(other.snapshots)
+        for snapshot, other_snapshot in zip(record.snapshots, other.snapshots, strict=True):
+            assert snapshot.step == other_snapshot.step
+            np.testing.assert_array_equal(snapshot.reward_estimate, other_snapshot.reward_estimate)
+            np.testing.assert_array_equal(snapshot.policy, other_snapshot.policy)
+            np.testing.assert_array_equal(snapshot.trajectory, other_snapshot.trajectory)
+
+
+def test_run_jobs_loads_finished_runs_from_the_cache(tmp_path, called_seeds):
+    """A second call with the same cache must return the stored records without running anything."""
+    jobs = small_jobs([(3, 0), (8, 1)], snapshot_at=[10])
+    first = run_jobs(counted_transfer_run, jobs, cache=tmp_path / "runs")
+    assert called_seeds() == [0, 1]
+    assert len(list((tmp_path / "runs").iterdir())) == 2  # one file per run, no temporary file left
+
+    second = run_jobs(counted_transfer_run, jobs, cache=tmp_path / "runs")
+    assert called_seeds() == [0, 1]
+    assert_same_records(second, first)
+    assert second[0].snapshots  # pictures survive the round trip
+
+
+def test_run_jobs_misses_the_cache_when_an_argument_or_the_code_changes(tmp_path, called_seeds, monkeypatch):
+    """A stale record would be silently plotted: another seed, or edited code, must run again."""
+    run_jobs(counted_transfer_run, small_jobs([(3, 0)]), cache=tmp_path)
+    (other_seed,) = run_jobs(counted_transfer_run, small_jobs([(3, 1)]), cache=tmp_path)
+    assert called_seeds() == [0, 1]
+    assert other_seed.tasks[0] == 3
+
+    monkeypatch.setattr(run_cache, "code_fingerprint", lambda: "the code after an edit")
+    run_jobs(counted_transfer_run, small_jobs([(3, 0)]), cache=tmp_path)
+    assert called_seeds() == [0, 1, 0]
+    assert len(list(tmp_path.glob("*.pkl"))) == 3
+
+
+def test_run_key_ignores_how_the_same_run_is_spelled():
+    """Positional or keyword, defaults left out, ranges or tuples, dict order: one run, one key."""
+    method = Method("ridge", kappa=0.3)
+    key = run_key(transfer_run, (method, 3, 0), {"snapshot_at": range(2), "env_kwargs": {"a": 1, "b": 2}})
+    same_run = {"seed": 0, "n_source": None, "snapshot_at": (0, 1), "env_kwargs": {"b": 2, "a": 1}}
+    assert run_key(transfer_run, (Method("ridge", kappa=0.3), 3), same_run) == key
+    another_method = run_key(transfer_run, (Method("ridge", kappa=0.1), 3, 0), {})
+    assert another_method != run_key(transfer_run, (method, 3, 0), {})
+    assert run_key(multitask_run, (method, 0), {}) != run_key(transfer_run, (method, 0, 0), {})
+    with pytest.raises(TypeError, match="no canonical form"):
+        run_key(transfer_run, (method, 3, 0), {"env_kwargs": {"a": object()}})
+
+
+def test_run_jobs_runs_only_the_runs_missing_from_the_cache(tmp_path, called_seeds):
+    """A killed reproduction resumes: the cached runs are loaded, the others run, all in the jobs' order."""
+    tasks_and_seeds = [(2, 0), (5, 1), (11, 2), (17, 3)]
+    cached = run_jobs(counted_transfer_run, small_jobs(tasks_and_seeds[::2]), cache=tmp_path)
+    files = {path: path.stat() for path in tmp_path.glob("*.pkl")}
+
+    records = run_jobs(counted_transfer_run, small_jobs(tasks_and_seeds), workers=2, cache=tmp_path)
+    assert called_seeds()[:2] == [0, 2]
+    assert sorted(called_seeds()[2:]) == [1, 3]
+    assert [int(record.tasks[0]) for record in records] == [task for task, _ in tasks_and_seeds]
+    assert_same_records(records[::2], cached)
+    assert all(path.stat().st_mtime_ns == stat.st_mtime_ns for path, stat in files.items())
+    assert len(list(tmp_path.glob("*.pkl"))) == 4
+
+
 @pytest.fixture
 def tiny_sizes(monkeypatch):
     """Few source transitions and one short multi-task turn: the figures' code paths in seconds."""
@@ -103,6 +203,27 @@ def test_reproduce_writes_valid_files(figure, tiny_sizes, tmp_path, capsys):
     data = json.loads((tmp_path / f"{figure}.json").read_text())
     assert data["figure"] == figure and data["seed"] == 2 and data["wall_time_seconds"] > 0
     assert data["package_version"] and data["parameters"] and data["results"]
+
+
+def test_reproduce_resumes_from_the_runs_of_a_previous_command(tiny_sizes, tmp_path, monkeypatch):
+    """``<out>/runs`` keeps one file per run; the same command again runs nothing, ``--no-cache`` does."""
+    command = ["reproduce", "fig8", "--runs", "1", "--workers", "1", "--seed", "2", "--out"]
+    assert main([*command, str(tmp_path)]) == 0
+    files = {path.name: path.stat().st_mtime_ns for path in (tmp_path / "runs").iterdir()}
+    assert len(files) == len(multitask.METHODS)
+    first = json.loads((tmp_path / "fig8.json").read_text())
+
+    def no_run(*args, **kwargs):
+        raise AssertionError("a finished run ran again")
+
+    monkeypatch.setattr(runner, "run_online", no_run)
+    assert main([*command, str(tmp_path)]) == 0
+    assert {path.name: path.stat().st_mtime_ns for path in (tmp_path / "runs").iterdir()} == files
+    assert json.loads((tmp_path / "fig8.json").read_text())["results"] == first["results"]
+
+    with pytest.raises(AssertionError, match="ran again"):
+        main([*command, str(tmp_path / "uncached"), "--no-cache"])
+    assert not (tmp_path / "uncached" / "runs").exists()
 
 
 @pytest.mark.parametrize(

@@ -11,8 +11,8 @@ from pathlib import Path
 
 __all__ = ["FIGURES", "reproduce"]
 
-# Figure -> (module of sb3_trlsd.experiments, function(out, runs, seed, workers) -> summary). Imported on
-# use, so that listing the figures (the command line's help) does not load torch and SB3.
+# Figure -> (module of sb3_trlsd.experiments, function(out, runs, seed, workers, cache=None) -> summary).
+# Imported on use, so that listing the figures (the command line's help) does not load torch and SB3.
 FIGURES: dict[str, tuple[str, str]] = {
     "fig1": ("known_reward", "reproduce"),
     "fig2": ("trajectories", "reproduce_fig2"),
@@ -25,7 +25,14 @@ FIGURES: dict[str, tuple[str, str]] = {
 }
 
 
-def reproduce(figure: str, out: str | Path, runs: int | None = None, seed: int = 0, workers: int = 1) -> dict:
+def reproduce(
+    figure: str,
+    out: str | Path,
+    runs: int | None = None,
+    seed: int = 0,
+    workers: int = 1,
+    cache: str | Path | None = None,
+) -> dict:
     """
     Run one figure's experiment and write its CSV, PNG and JSON to ``out``.
 
@@ -34,6 +41,9 @@ def reproduce(figure: str, out: str | Path, runs: int | None = None, seed: int =
     :param runs: runs per method (None: the paper's size)
     :param seed: seed of the first run; run r uses ``seed + r``
     :param workers: processes the runs are spread over
+    :param cache: directory where finished runs are kept, and reused when the same runs are asked of the
+        same code again (a killed reproduction resumes there); None: every run is run, none is kept.
+        Figures 2-4 (one short run each) do not use it.
     :return: the figure's JSON summary
     """
     if figure not in FIGURES:
@@ -46,4 +56,4 @@ def reproduce(figure: str, out: str | Path, runs: int | None = None, seed: int =
     out.mkdir(parents=True, exist_ok=True)
     module, function = FIGURES[figure]
     run = getattr(importlib.import_module(f"sb3_trlsd.experiments.{module}"), function)
-    return run(out, runs, seed, workers)
+    return run(out, runs, seed, workers, cache=None if cache is None else Path(cache))

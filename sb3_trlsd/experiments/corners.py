@@ -22,11 +22,15 @@ METHODS = [
 ]
 
 
-def reproduce(out: Path, runs: int | None, seed: int, workers: int) -> dict:
-    """Curves of the corner tasks, one panel per update ratio."""
+def reproduce(out: Path, runs: int | None, seed: int, workers: int, cache: Path | None = None) -> dict:
+    """
+    Curves of the corner tasks, one panel per update ratio.
+
+    :param cache: directory of finished runs, reused and completed (see ``run_jobs``); None: no cache
+    """
     started = time.perf_counter()
     runs = runs or DEFAULT_RUNS
-    records = transfer_runs(METHODS, CORNER_TASKS, runs, seed, workers)
+    records = transfer_runs(METHODS, CORNER_TASKS, runs, seed, workers, cache=cache)
     return write_transfer_figure(
         out,
         "fig6",

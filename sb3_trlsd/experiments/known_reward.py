@@ -18,11 +18,16 @@ PICTURE_STEP = 30
 KNOWN = Method("known reward", reward_head="known", kappa=0.0)
 
 
-def reproduce(out: Path, runs: int | None, seed: int, workers: int) -> dict:
-    """Curves of the 25 tasks with the known reward, next to one trajectory as in the paper's Figure 1."""
+def reproduce(out: Path, runs: int | None, seed: int, workers: int, cache: Path | None = None) -> dict:
+    """
+    Curves of the 25 tasks with the known reward, next to one trajectory as in the paper's Figure 1 (the
+    trajectory's run, a short one, is not cached).
+
+    :param cache: directory of finished runs, reused and completed (see ``run_jobs``); None: no cache
+    """
     started = time.perf_counter()
     runs = runs or DEFAULT_RUNS
-    records = transfer_runs([KNOWN], range(N_TASKS), runs, seed, workers)
+    records = transfer_runs([KNOWN], range(N_TASKS), runs, seed, workers, cache=cache)
     picture = transfer_run(KNOWN, PICTURE_TASK, seed, snapshot_at=[PICTURE_STEP]).snapshots[0]
     return write_transfer_figure(
         out,

@@ -48,12 +48,18 @@ def near_solved_episode(episode_rewards: np.ndarray) -> int:
     return (first + 1) * N_TASKS
 
 
-def reproduce(out: Path, runs: int | None, seed: int, workers: int) -> dict:
-    """Reward per episode of each method, and when each is near solved."""
+def reproduce(out: Path, runs: int | None, seed: int, workers: int, cache: Path | None = None) -> dict:
+    """
+    Reward per episode of each method, and when each is near solved.
+
+    :param cache: directory of finished runs, reused and completed (see ``run_jobs``); None: no cache
+    """
     started = time.perf_counter()
     runs = runs or DEFAULT_RUNS
     jobs = [((method, seed + run, TURNS, EPISODE_STEPS), {}) for method in METHODS for run in range(runs)]
-    records = run_jobs(multitask_run, jobs, workers, description=f"{len(METHODS)} methods x {runs} runs")
+    records = run_jobs(
+        multitask_run, jobs, workers, description=f"{len(METHODS)} methods x {runs} runs", cache=cache
+    )
     episodes = {
         method.label: np.stack(
             [

@@ -6,7 +6,8 @@ over the env, so it uses the algorithm's own buffer, reward heads, trigger and F
 same actions as ``model.learn`` with the same seed (``tests/test_experiments.py`` checks it), without
 SB3's rollout machinery (vectorised env, monitor, logger, torch predict), which costs as much as the
 refits on the maze. Runs are independent: each job has its own seed, and ``run_jobs`` spreads them over
-processes.
+processes and, given a cache directory, keeps the finished ones there to resume a killed reproduction
+(``sb3_trlsd.experiments.run_cache``).
 """
 
 from __future__ import annotations
@@ -14,8 +15,9 @@ from __future__ import annotations
 import itertools
 import time
 from collections.abc import Callable, Iterable, Sequence
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass, field
+from pathlib import Path
 from typing import Any, TypeVar
 
 import gymnasium as gym
@@ -25,6 +27,7 @@ from tqdm.auto import tqdm
 
 from envs import MAZE_ID, expected_reward
 from sb3_trlsd.data import collect_transitions
+from sb3_trlsd.experiments.run_cache import RunCache
 from sb3_trlsd.pictures import greedy_policy_grid, state_grid
 from sb3_trlsd.trlsd import TRLSD
 
@@ -265,34 +268,60 @@ def run_jobs(
     jobs: Sequence[tuple[tuple, dict]],
     workers: int = 1,
     description: str = "runs",
+    cache: Path | None = None,
 ) -> list[Result]:
     """
     ``function(*args, **kwargs)`` for each job, in order, over ``workers`` processes, with a progress bar.
+
+    With a ``cache``, the jobs already found there are loaded instead of run (the progress bar starts at
+    their number), and each other job is written there as soon as it finishes: a killed reproduction
+    resumes where it stopped. A job is found when ``function`` was called with the same arguments by the
+    same code (see ``sb3_trlsd.experiments.run_cache``): ``function`` must be a pure function of them.
 
     :param function: a module-level function (picklable)
     :param jobs: ``(args, kwargs)`` of each call
     :param workers: processes (1: in this process)
     :param description: label of the progress bar
+    :param cache: directory of finished runs (created if needed); None: run every job, keep nothing
     :return: the results in the order of ``jobs``
     """
-    calls = [(function, args, kwargs) for args, kwargs in jobs]
+    run_cache = None if cache is None else RunCache(cache)
+    paths = [None if run_cache is None else run_cache.path_of(function, *job) for job in jobs]
+    results: list[Any] = [None] * len(jobs)
+    missing: list[int] = []  # indices of the jobs to run
+    for index, path in enumerate(paths):
+        if path is not None and path.exists():
+            results[index] = run_cache.load(path)
+        else:
+            missing.append(index)
     # No bar when the output is not a terminal (a log file would fill with its redraws).
-    bar = tqdm(total=len(calls), desc=description, unit="run", leave=False, disable=None)
+    bar = tqdm(
+        total=len(jobs),
+        initial=len(jobs) - len(missing),
+        desc=description,
+        unit="run",
+        leave=False,
+        disable=None,
+    )
+
+    def finish(index: int, result: Result) -> None:
+        results[index] = result
+        if run_cache is not None:
+            run_cache.store(paths[index], result)
+        bar.update()
+
     try:
         if workers <= 1:
-            results = []
-            for call in calls:
-                results.append(_call(call))
-                bar.update()
-            return results
-        with ProcessPoolExecutor(workers) as pool:
-            results = []
-            for result in pool.map(_call, calls, chunksize=1):
-                results.append(result)
-                bar.update()
-            return results
+            for index in missing:
+                finish(index, _call((function, *jobs[index])))
+        else:
+            with ProcessPoolExecutor(workers) as pool:
+                futures = {pool.submit(_call, (function, *jobs[index])): index for index in missing}
+                for future in as_completed(futures):
+                    finish(futures[future], future.result())
     finally:
         bar.close()
+    return results
 
 
 def transfer_runs(
@@ -304,15 +333,22 @@ def transfer_runs(
     n_source: int | None = None,
     n_online: int | None = None,
     env_kwargs: dict[str, Any] | None = None,
+    cache: Path | None = None,
 ) -> dict[str, list[RunRecord]]:
     """
     ``runs`` transfer runs of each method, run ``r`` on ``tasks[r % len(tasks)]`` with seed ``seed + r``:
     every method sees the same tasks, source transitions and env seeds (common random numbers), so that
     their differences are not blurred by the luck of the draw.
 
+    :param n_source: random source transitions (None: ``SOURCE_TRANSITIONS``)
+    :param n_online: online transitions (None: ``ONLINE_TRANSITIONS``)
     :param env_kwargs: keyword arguments of the target task's env (paper's settings by default)
+    :param cache: directory of finished runs, see ``run_jobs`` (None: none)
     :return: method label -> its runs' records
     """
+    # The sizes are resolved here, not in the workers, so that a cached run's key holds them.
+    n_source = SOURCE_TRANSITIONS if n_source is None else n_source
+    n_online = ONLINE_TRANSITIONS if n_online is None else n_online
     jobs = [
         (
             (method, tasks[run % len(tasks)], seed + run, n_source, n_online),
@@ -321,5 +357,7 @@ def transfer_runs(
         for method in methods
         for run in range(runs)
     ]
-    records = run_jobs(transfer_run, jobs, workers, description=f"{len(methods)} methods x {runs} runs")
+    records = run_jobs(
+        transfer_run, jobs, workers, description=f"{len(methods)} methods x {runs} runs", cache=cache
+    )
     return {method.label: records[i * runs : (i + 1) * runs] for i, method in enumerate(methods)}

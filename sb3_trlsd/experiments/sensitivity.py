@@ -22,8 +22,12 @@ SIGMAS = (0.05, 0.1, 0.2, 0.5, 1.0)
 WINDOWS = [(0, 100), (0, 200), (0, 500), (0, 1000), (500, 1000)]
 
 
-def reproduce(out: Path, runs: int | None, seed: int, workers: int) -> dict:
-    """Window averages against kappa and against sigma, with standard-error bars."""
+def reproduce(out: Path, runs: int | None, seed: int, workers: int, cache: Path | None = None) -> dict:
+    """
+    Window averages against kappa and against sigma, with standard-error bars.
+
+    :param cache: directory of finished runs, reused and completed (see ``run_jobs``); None: no cache
+    """
     started = time.perf_counter()
     runs = runs or DEFAULT_RUNS
     sweeps = {
@@ -31,7 +35,7 @@ def reproduce(out: Path, runs: int | None, seed: int, workers: int) -> dict:
         "sigma": [Method(f"sigma={sigma:g}", sigma=sigma) for sigma in SIGMAS if sigma != 0.2],
     }
     methods = sweeps["kappa"] + sweeps["sigma"]
-    records = transfer_runs(methods, range(N_TASKS), runs, seed, workers)
+    records = transfer_runs(methods, range(N_TASKS), runs, seed, workers, cache=cache)
     # kappa = 0.1, sigma = 0.2 is the same method in both sweeps: run once, shown in both.
     records["sigma=0.2"] = records["kappa=0.1"]
     curves = {label: np.stack([record.rewards for record in runs]) for label, runs in records.items()}

@@ -58,16 +58,16 @@ def _interval_rewards(rewards: np.ndarray, steps: Sequence[int]) -> dict[str, fl
     return {f"[{a}, {b})": float(rewards[a:b].mean()) for a, b in itertools.pairwise(bounds)}
 
 
-def reproduce_fig2(out: Path, runs: int | None, seed: int, workers: int) -> dict:
-    """Figure 2 (one run: ``runs`` and ``workers`` do not apply)."""
+def reproduce_fig2(out: Path, runs: int | None, seed: int, workers: int, cache: Path | None = None) -> dict:
+    """Figure 2 (one short run: ``runs``, ``workers`` and ``cache`` do not apply)."""
     return _reproduce("fig2", out, seed)
 
 
-def reproduce_fig3(out: Path, runs: int | None, seed: int, workers: int) -> dict:
-    """Figure 3 (one run: ``runs`` and ``workers`` do not apply)."""
+def reproduce_fig3(out: Path, runs: int | None, seed: int, workers: int, cache: Path | None = None) -> dict:
+    """Figure 3 (one short run: ``runs``, ``workers`` and ``cache`` do not apply)."""
     return _reproduce("fig3", out, seed)
 
 
-def reproduce_fig4(out: Path, runs: int | None, seed: int, workers: int) -> dict:
-    """Figure 4 (one run: ``runs`` and ``workers`` do not apply)."""
+def reproduce_fig4(out: Path, runs: int | None, seed: int, workers: int, cache: Path | None = None) -> dict:
+    """Figure 4 (one short run: ``runs``, ``workers`` and ``cache`` do not apply)."""
     return _reproduce("fig4", out, seed)
