@@ -10,7 +10,8 @@ the target task tau_11's samples, with rewards 1{cell (1, 1)} + N(0, 1) (eq. 12)
 - FQI: ``fit_linear_fqi`` (per-action Gram matrices factored once, only the targets recomputed) against
   ``numpy.linalg.lstsq`` on the whole (n, 100) design matrix of eq. 3-4 at every iteration, for the same
   number of iterations from the same start, both with the bootstrap clip of ``bellman_targets``. Also
-  shown: a warm refit with ``LinearFQISolver`` after a change of rewards, the algorithm's steady state.
+  shown: a warm refit with ``LinearFQISolver`` after a change of rewards, the algorithm's steady state, and
+  the same refit as ``TRLSD``'s ``LinearPolicy`` runs it (float32 features, ``TRLSD``'s default ``fqi_tol``).
 - Relabelling: the ridge head's tracker after 10 new target samples (it folds in only those) against the
   head evaluated from scratch on the 26,000 states (every kernel sum W(s) of eq. 8 over all samples).
 
@@ -23,11 +24,13 @@ Asserts that both versions of each agree (a correctness check); prints medians o
 from __future__ import annotations
 
 import argparse
+import inspect
 import time
 from collections.abc import Callable
 
 import numpy as np
 
+from sb3_trlsd import TRLSD
 from sb3_trlsd.features import RBFGrid, state_action_features
 from sb3_trlsd.fqi import LinearFQISolver, bellman_targets, fit_linear_fqi, linear_q_values, return_bounds
 from sb3_trlsd.reward_heads import RidgeRewardHead, maze_cell_index
@@ -119,6 +122,17 @@ def main() -> None:
         lambda: solver.fit(new_rewards, gamma=GAMMA, theta0=previous.theta), args.repeats
     )
 
+    # The same refit as TRLSD's LinearPolicy does it: float32 features, TRLSD's default tolerance.
+    tol = inspect.signature(TRLSD).parameters["fqi_tol"].default
+    policy_solver = LinearFQISolver(grid.n_features, 4, ridge=1e-9, dtype=np.float32)
+    policy_solver.extend(phi, actions, next_phi, terminated)
+    policy_previous = policy_solver.fit(rewards, gamma=GAMMA, tol=tol)
+    policy_warm = policy_solver.fit(new_rewards, gamma=GAMMA, theta0=policy_previous.theta, tol=tol)
+    policy_warm_seconds = median_seconds(
+        lambda: policy_solver.fit(new_rewards, gamma=GAMMA, theta0=policy_previous.theta, tol=tol),
+        args.repeats,
+    )
+
     # (c) vs (d): each repeat adds 10 target samples, then relabels the 26,000 start states.
     tracker = head.tracker(states)
     tracker.optimistic()
@@ -146,6 +160,10 @@ def main() -> None:
     print(
         f"| warm LinearFQISolver refit, rewards changed ({warm.iterations} iterations) "
         f"| {warm_seconds * 1e3:.1f} ms | | |"
+    )
+    print(
+        f"| the same refit as TRLSD does it: float32 features, tol {tol:g} ({policy_warm.iterations} "
+        f"iterations) | {policy_warm_seconds * 1e3:.1f} ms | | |"
     )
     print(
         f"| one relabelling after {N_NEW} new samples | {relabel_seconds * 1e3:.2f} ms "
