@@ -140,10 +140,50 @@ def test_run_jobs_misses_the_cache_when_an_argument_or_the_code_changes(tmp_path
     assert called_seeds() == [0, 1]
     assert other_seed.tasks[0] == 3
 
-    monkeypatch.setattr(run_cache, "code_fingerprint", lambda: "the code after an edit")
+    monkeypatch.setattr(run_cache, "code_fingerprint", lambda module: "the code after an edit")
     run_jobs(counted_transfer_run, small_jobs([(3, 0)]), cache=tmp_path)
     assert called_seeds() == [0, 1, 0]
     assert len(list(tmp_path.glob("*.pkl"))) == 3
+
+
+def test_fingerprint_covers_the_code_a_run_imports_and_not_the_reporting():
+    """Editing the algorithm must invalidate the runs; redrawing a figure or the command line must not."""
+    modules = run_cache.fingerprinted_modules("sb3_trlsd.experiments.runner")
+    for executed in (
+        "sb3_trlsd.trlsd",
+        "sb3_trlsd.fqi",
+        "sb3_trlsd.reward_heads",
+        "envs.maze",
+        "envs.dynamics",
+    ):
+        assert executed in modules
+    for not_run in ("reporting", "figures", "multitask", "transfer"):
+        assert f"sb3_trlsd.experiments.{not_run}" not in modules
+    assert "sb3_trlsd.cli" not in modules
+
+
+def test_fingerprint_changes_with_an_imported_module_only(tmp_path, monkeypatch):
+    """A package where the run imports ``core`` inside a function, and ``plot`` is never imported by it."""
+    package = tmp_path / "fakepkg"
+    package.mkdir()
+    (package / "__init__.py").write_text("")
+    (package / "run.py").write_text("def run():\n    from fakepkg import core\n    return core.VALUE\n")
+    (package / "core.py").write_text("VALUE = 1\n")
+    (package / "plot.py").write_text("from fakepkg.run import run\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setattr(run_cache, "FINGERPRINTED_PACKAGES", ("fakepkg",))
+    assert run_cache.fingerprinted_modules("fakepkg.run") == {"fakepkg", "fakepkg.run", "fakepkg.core"}
+
+    def fingerprint() -> str:
+        run_cache.code_fingerprint.cache_clear()
+        return run_cache.code_fingerprint("fakepkg.run")
+
+    before = fingerprint()
+    (package / "plot.py").write_text("from fakepkg.run import run\nLABEL = 'redrawn'\n")
+    assert fingerprint() == before
+    (package / "core.py").write_text("VALUE = 2\n")
+    assert fingerprint() != before
+    run_cache.code_fingerprint.cache_clear()
 
 
 def test_run_key_ignores_how_the_same_run_is_spelled():

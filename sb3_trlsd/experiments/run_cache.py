@@ -3,50 +3,117 @@ Finished runs kept on disk, so that a reproduction killed after hours resumes wh
 
 A run is a pure function of its arguments (its seed included), so a finished one can be reused whenever
 the same function is called with the same arguments by the same code. Its key is a sha256 over the
-function's qualified name, a canonical form of its arguments and a fingerprint of the source of the
-``sb3_trlsd`` and ``envs`` packages: any edit of that code makes every run a miss (it may change the
-results), and nothing else invalidates a run (installed dependencies are not part of the key). The runs
-are pickles: a cache directory must be as trusted as the code.
+function's qualified name, a canonical form of its arguments and a fingerprint of the code the run
+executes: the modules of ``sb3_trlsd`` and ``envs`` that the function's module imports, directly or not
+(``code_fingerprint``). An edit of any of them makes the run a miss (it may change the results); an edit
+of a module the run does not import (a figure's plotting and tables, the command line) does not, nor does
+anything else (installed dependencies are not part of the key). The runs are pickles: a cache directory
+must be as trusted as the code.
 """
 
 from __future__ import annotations
 
+import ast
 import dataclasses
 import functools
 import hashlib
-import importlib
+import importlib.util
 import inspect
 import os
 import pickle
+import sys
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-__all__ = ["RunCache", "canonical_form", "code_fingerprint", "run_key"]
+__all__ = [
+    "RunCache",
+    "canonical_form",
+    "code_fingerprint",
+    "fingerprinted_modules",
+    "imported_package_modules",
+    "run_key",
+]
 
 FINGERPRINTED_PACKAGES = ("sb3_trlsd", "envs")  # the code a run's results depend on, besides dependencies
 
 
-@functools.cache
-def code_fingerprint() -> str:
+def imported_package_modules(path: Path) -> set[str]:
     """
-    sha256 of every ``*.py`` file of the installed ``sb3_trlsd`` and ``envs`` packages, sorted by path
-    relative to the directory holding the packages (the names are hashed too: a moved file counts).
-    Computed once per process.
+    The modules of ``FINGERPRINTED_PACKAGES`` that a source file names in its import statements, wherever
+    they are (inside functions too), with their parent packages (importing ``a.b.c`` runs ``a`` and ``a.b``).
+    ``from a import b`` counts ``a`` and, when ``b`` is a submodule, ``a.b``. Imports by name at run time
+    (``importlib.import_module``) are not seen.
 
+    :param path: a Python source file
+    :return: module names
+    """
+    names: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_bytes(), filename=str(path))):
+        if isinstance(node, ast.Import):
+            names.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                raise ValueError(f"{path}: relative imports are not followed by the run cache's fingerprint")
+            names.add(node.module or "")
+            names.update(f"{node.module}.{alias.name}" for alias in node.names)
+    modules = set()
+    for name in names:
+        parts = name.split(".")
+        if parts[0] not in FINGERPRINTED_PACKAGES:
+            continue
+        for depth in range(1, len(parts) + 1):
+            prefix = ".".join(parts[:depth])
+            try:
+                spec = importlib.util.find_spec(prefix)
+            except ModuleNotFoundError:  # ``from a import b`` with b an attribute, not a module
+                spec = None
+            if spec is not None and spec.origin is not None:
+                modules.add(prefix)
+    return modules
+
+
+def module_file(name: str) -> Path:
+    """:return: the source file of the module ``name``"""
+    spec = importlib.util.find_spec(name)
+    if spec is None or spec.origin is None:
+        raise ModuleNotFoundError(f"no source file for module {name!r}")
+    return Path(spec.origin)
+
+
+def fingerprinted_modules(module: str) -> set[str]:
+    """
+    The modules of ``FINGERPRINTED_PACKAGES`` that ``module`` imports, directly or through other modules of
+    those packages (``imported_package_modules``), ``module`` itself included if it is one of them.
+
+    :param module: a module name (e.g. the ``__module__`` of a run's function)
+    :return: module names
+    """
+    closure: set[str] = {module} if module.split(".")[0] in FINGERPRINTED_PACKAGES else set()
+    loaded = sys.modules.get(module)  # e.g. __main__ or a test module, which find_spec may not locate
+    pending = [Path(loaded.__file__) if getattr(loaded, "__file__", None) else module_file(module)]
+    while pending:
+        for name in imported_package_modules(pending.pop()) - closure:
+            closure.add(name)
+            pending.append(module_file(name))
+    return closure
+
+
+@functools.cache
+def code_fingerprint(module: str) -> str:
+    """
+    sha256 of the source of ``fingerprinted_modules(module)``, sorted by module name, the names hashed too (a
+    moved module counts). Computed once per module and process.
+
+    :param module: the name of the module defining a run's function
     :return: the hex digest
     """
-    files: dict[str, Path] = {}  # path relative to the directory holding the package -> the file
-    for name in FINGERPRINTED_PACKAGES:
-        package_directory = Path(importlib.import_module(name).__file__).parent
-        for path in package_directory.rglob("*.py"):
-            files[path.relative_to(package_directory.parent).as_posix()] = path
     digest = hashlib.sha256()
-    for relative_path, path in sorted(files.items()):
-        digest.update(relative_path.encode() + b"\0")
-        digest.update(hashlib.sha256(path.read_bytes()).digest())
+    for name in sorted(fingerprinted_modules(module)):
+        digest.update(name.encode() + b"\0")
+        digest.update(hashlib.sha256(module_file(name).read_bytes()).digest())
     return digest.hexdigest()
 
 
@@ -80,7 +147,8 @@ def run_key(function: Callable[..., Any], args: tuple, kwargs: dict[str, Any]) -
     """
     The key of the run ``function(*args, **kwargs)``: a sha256 over the function's qualified name, its
     arguments bound to its parameters (defaults filled in, so that passing an argument by position or by
-    name, or leaving a default out, is the same run) in canonical form, and ``code_fingerprint()``.
+    name, or leaving a default out, is the same run) in canonical form, and the fingerprint of the code it
+    runs (``code_fingerprint`` of the function's module).
 
     :param function: a module-level function
     :param args: positional arguments of the run
@@ -92,7 +160,7 @@ def run_key(function: Callable[..., Any], args: tuple, kwargs: dict[str, Any]) -
     description = [
         f"{function.__module__}.{function.__qualname__}",
         canonical_form(arguments.arguments),
-        code_fingerprint(),
+        code_fingerprint(function.__module__),
     ]
     return hashlib.sha256(repr(description).encode()).hexdigest()
 
