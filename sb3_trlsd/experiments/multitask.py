@@ -35,17 +35,71 @@ METHODS = [
 ]
 
 
+def turn_rewards(episode_rewards: np.ndarray) -> np.ndarray:
+    """
+    The average reward of each turn of each run: a turn is 25 episodes, one per task, so that easy and hard
+    tasks weigh the same in it.
+
+    :param episode_rewards: (runs, episodes) average reward of each episode, a whole number of turns
+    :return: (runs, turns)
+    """
+    runs, episodes = episode_rewards.shape
+    return episode_rewards.reshape(runs, episodes // N_TASKS, N_TASKS).mean(axis=2)
+
+
 def near_solved_episode(episode_rewards: np.ndarray) -> int:
     """
-    The number of episodes after which the mean reward of a whole turn (25 episodes, one per task, so that
-    easy and hard tasks weigh the same) first reaches ``NEAR_SOLVED`` times that of the last turn.
+    The number of episodes after which the mean reward of a whole turn (see ``turn_rewards``) first reaches
+    ``NEAR_SOLVED`` times that of the last turn.
 
     :param episode_rewards: (runs, episodes) average reward of each episode
     :return: episodes played by the end of that turn
     """
-    turns = episode_rewards.mean(axis=0).reshape(-1, N_TASKS).mean(axis=1)
+    turns = turn_rewards(episode_rewards).mean(axis=0)
     first = int(np.argmax(turns >= NEAR_SOLVED * turns[-1]))
     return (first + 1) * N_TASKS
+
+
+def turn_curves(turns: dict[str, np.ndarray]) -> dict[str, dict[str, list[float]]]:
+    """
+    The curves of the right panel of ``draw_figure``, for the JSON summary.
+
+    :param turns: label -> (runs, turns) average reward of each turn
+    :return: label -> {"mean": [...], "se": [...]}, one value per turn
+    """
+    curves = {}
+    for label, values in turns.items():
+        mean, se = mean_and_standard_error(values)
+        curves[label] = {"mean": mean.round(4).tolist(), "se": se.round(4).tolist()}
+    return curves
+
+
+def draw_figure(
+    path: Path, episodes: dict[str, np.ndarray], turns: dict[str, np.ndarray], near_solved: dict[str, int]
+) -> None:
+    """
+    The paper's Figure 8, the reward of each episode, and beside it the reward of each turn (each task
+    once), which the alternation of easy and hard tasks does not blur, with each method's near-solved point.
+
+    :param path: the PNG written
+    :param episodes: label -> (runs, episodes) average reward of each episode
+    :param turns: label -> (runs, turns) average reward of each turn
+    :param near_solved: label -> episodes after which the method is near solved
+    """
+    colors = {label: f"C{index}" for index, label in enumerate(episodes)}
+    figure, (by_episode, by_turn) = new_figure(2, width=6.0)
+    plot_curves(
+        by_episode, episodes, xlabel="episodes (50 transitions each, the 25 tasks in turn)", colors=colors
+    )
+    by_episode.set_title("each episode (the paper's figure)")
+    end_of_turns = N_TASKS * np.arange(1, next(iter(turns.values())).shape[1] + 1)
+    plot_curves(
+        by_turn, turns, xlabel="episodes, at the end of each turn", colors=colors, x=end_of_turns, marker="."
+    )
+    for label, episode in near_solved.items():
+        by_turn.axvline(episode, color=colors[label], linestyle=":", linewidth=1.2)
+    by_turn.set_title(f"each turn (25 episodes); dotted: near solved ({NEAR_SOLVED:.0%} of the last)")
+    save_figure(figure, path, "Figure 8: multi-task learning of the 25 tasks, no source data")
 
 
 def reproduce(out: Path, runs: int | None, seed: int, workers: int, cache: Path | None = None) -> dict:
@@ -70,16 +124,16 @@ def reproduce(out: Path, runs: int | None, seed: int, workers: int, cache: Path 
         for i, method in enumerate(METHODS)
     }
     write_curves_csv(out / "fig8.csv", "episode", episodes)
-    figure, (ax,) = new_figure(1, width=7.0)
-    plot_curves(ax, episodes, xlabel="episodes (50 transitions each, the 25 tasks in turn)")
-    save_figure(figure, out / "fig8.png", "Figure 8: multi-task learning of the 25 tasks, no source data")
+    turns = {label: turn_rewards(values) for label, values in episodes.items()}
+    near_solved = {label: near_solved_episode(values) for label, values in episodes.items()}
+    draw_figure(out / "fig8.png", episodes, turns, near_solved)
 
     results = {}
     for i, method in enumerate(METHODS):
         values = episodes[method.label]
-        last_turn, last_se = mean_and_standard_error(values[:, -N_TASKS:].mean(axis=1))
+        last_turn, last_se = mean_and_standard_error(turns[method.label][:, -1])
         results[method.label] = {
-            "near_solved_after_episodes": near_solved_episode(values),
+            "near_solved_after_episodes": near_solved[method.label],
             "last_turn_reward": {"mean": float(last_turn), "se": float(last_se)},
             "reward_first_300_episodes": float(values[:, :300].mean()),
             "policy_updates": update_counts(records[i * runs : (i + 1) * runs]),
@@ -97,6 +151,7 @@ def reproduce(out: Path, runs: int | None, seed: int, workers: int, cache: Path 
         seed,
         time.perf_counter() - started,
         results=results,
+        turn_rewards=turn_curves(turns),
     )
     write_json(out / "fig8.json", data)
     return data

@@ -91,6 +91,8 @@ def plot_curves(
     xlabel: str = "transitions",
     ylabel: str = "average reward",
     colors: Mapping[str, str] | None = None,
+    x: np.ndarray | None = None,
+    marker: str | None = None,
 ) -> None:
     """
     Mean curves with a band of one standard error, as in the paper's Figures 5, 6 and 8.
@@ -101,13 +103,17 @@ def plot_curves(
     :param xlabel: x axis label
     :param ylabel: y axis label
     :param colors: label -> matplotlib color, to keep a method's color across panels (default: cycle)
+    :param x: abscissa of the points (default: 0, 1, ...)
+    :param marker: matplotlib marker of the points (default: none)
     """
     for label, values in curves.items():
         mean, se = mean_and_standard_error(moving_average(values, smooth))
-        x = np.arange(len(mean))
+        abscissa = np.arange(len(mean)) if x is None else np.asarray(x)
         color = None if colors is None else colors.get(label)
-        (line,) = ax.plot(x, mean, label=f"{label} ({len(values)} runs)", linewidth=1.5, color=color)
-        ax.fill_between(x, mean - se, mean + se, color=line.get_color(), alpha=0.25, linewidth=0)
+        (line,) = ax.plot(
+            abscissa, mean, label=f"{label} ({len(values)} runs)", linewidth=1.5, color=color, marker=marker
+        )
+        ax.fill_between(abscissa, mean - se, mean + se, color=line.get_color(), alpha=0.25, linewidth=0)
     ax.set_xlabel(xlabel)
     ax.set_ylabel(ylabel + (f" (moving average over {smooth})" if smooth > 1 else ""))
     ax.grid(alpha=0.3)
