@@ -23,7 +23,7 @@ import argparse
 
 import numpy as np
 
-from envs import N_TASKS
+from sb3_trlsd_envs import N_TASKS
 from sb3_trlsd.experiments.reporting import mean_and_standard_error
 from sb3_trlsd.experiments.runner import Method, transfer_runs
 

@@ -28,7 +28,7 @@ import gymnasium as gym
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from envs import MAZE_ID, expected_reward
+from sb3_trlsd_envs import MAZE_ID, expected_reward
 from sb3_trlsd import TRLSD, collect_transitions
 from sb3_trlsd.experiments import reproduce
 from sb3_trlsd.experiments.runner import Method, transfer_run

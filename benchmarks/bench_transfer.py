@@ -21,7 +21,7 @@ import gymnasium as gym
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from envs.maze import N_TASKS, expected_reward
+from sb3_trlsd_envs.maze import N_TASKS, expected_reward
 from sb3_trlsd import TRLSD, collect_transitions
 
 MAZE_ID = "TRLSD/SharedDynamicsMaze-v0"

@@ -3,7 +3,7 @@ plugin entry points)."""
 
 from gymnasium.envs.registration import register, registry
 
-from envs.dynamics import (
+from sb3_trlsd_envs.dynamics import (
     DEFAULT_WALLS,
     EAST,
     NORTH,
@@ -14,8 +14,8 @@ from envs.dynamics import (
     maze_step,
     segment_crosses_walls,
 )
-from envs.maze import CORNER_TASKS, N_TASKS, SharedDynamicsMaze, expected_reward, task_cell, task_index
-from envs.rendering import draw_maze, render_maze, save_maze_png
+from sb3_trlsd_envs.maze import CORNER_TASKS, N_TASKS, SharedDynamicsMaze, expected_reward, task_cell, task_index
+from sb3_trlsd_envs.rendering import draw_maze, render_maze, save_maze_png
 
 __all__ = [
     "CORNER_TASKS",
@@ -44,4 +44,4 @@ MAZE_ID = "TRLSD/SharedDynamicsMaze-v0"
 # Registering an id twice makes Gymnasium warn; the module cache usually prevents it, this guard covers
 # reloads and a registration made elsewhere first.
 if MAZE_ID not in registry:
-    register(id=MAZE_ID, entry_point="envs.maze:SharedDynamicsMaze")
+    register(id=MAZE_ID, entry_point="sb3_trlsd_envs.maze:SharedDynamicsMaze")

@@ -9,7 +9,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from envs.dynamics import DEFAULT_WALLS, EAST, MAZE_SIZE, NORTH, SOUTH, WEST, cell_of, make_walls, maze_step
+from sb3_trlsd_envs.dynamics import DEFAULT_WALLS, EAST, MAZE_SIZE, NORTH, SOUTH, WEST, cell_of, make_walls, maze_step
 
 __all__ = [
     "CORNER_TASKS",
@@ -139,7 +139,7 @@ class SharedDynamicsMaze(gym.Env):
     `Discrete(4)`: 0 NORTH (y - 1), 1 WEST (x - 1), 2 SOUTH (y + 1), 3 EAST (x + 1). A move is 1 along the
     action's axis plus N(0, 0.5) noise on it, and N(0, 0.25) noise on the other axis (standard
     deviations). A move stops where it first meets a wall and rebounds by U(0.1, 0.5) into the side it
-    came from, until it crosses no wall (see `envs.dynamics`).
+    came from, until it crosses no wall (see `sb3_trlsd_envs.dynamics`).
 
     ## Observation Space
     `Dict({"state": Box(0, 5, (2,), float32), "task": Discrete(25)})`: the position `(x, y)` in the open
@@ -355,7 +355,7 @@ class SharedDynamicsMaze(gym.Env):
                 'pass render_mode="rgb_array" at initialization'
             )
             return None
-        from envs.rendering import render_maze
+        from sb3_trlsd_envs.rendering import render_maze
 
         return render_maze(
             self.walls, target_cells=[task_cell(self.task)], trajectory=np.array(self.trajectory)

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from envs.dynamics import ACTION_DIRECTIONS, EAST, MAZE_SIZE, NORTH, SOUTH, WEST, make_walls
+from sb3_trlsd_envs.dynamics import ACTION_DIRECTIONS, EAST, MAZE_SIZE, NORTH, SOUTH, WEST, make_walls
 
 __all__ = ["draw_maze", "render_maze", "save_maze_png"]
 
@@ -99,7 +99,7 @@ def draw_maze(
     Draw the maze and its overlays on a matplotlib Axes.
 
     :param ax: the Axes; its limits are set to the square, with y pointing down (NORTH is up)
-    :param walls: wall layout (the border is added), as accepted by :func:`envs.dynamics.make_walls`
+    :param walls: wall layout (the border is added), as accepted by :func:`sb3_trlsd_envs.dynamics.make_walls`
     :param target_cells: cells ``(i, j)`` filled in green when no heat map is given, outlined otherwise
     :param trajectory: (t, 2) states joined by a blue broken line
     :param cell_values: (5, 5) values indexed ``[i - 1, j - 1]``, as a green heat map

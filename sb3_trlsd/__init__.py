@@ -3,7 +3,7 @@
 Importing the package registers the maze, ``TRLSD/SharedDynamicsMaze-v0``.
 """
 
-import envs  # noqa: F401  (registers TRLSD/SharedDynamicsMaze-v0)
+import sb3_trlsd_envs  # noqa: F401  (registers TRLSD/SharedDynamicsMaze-v0)
 from sb3_trlsd.buffers import SharedDynamicsReplayBuffer
 from sb3_trlsd.data import Transitions, collect_transitions
 from sb3_trlsd.features import RBFGrid

@@ -11,7 +11,7 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 
-import envs
+import sb3_trlsd_envs
 from sb3_trlsd.experiments import FIGURES
 
 __all__ = ["main"]
@@ -36,7 +36,7 @@ def parse_task(text: str) -> int | tuple[int, int]:
 
 def render_command(args: argparse.Namespace) -> int:
     """Render the maze with one random trajectory of the given task to a PNG."""
-    env = gym.make(envs.MAZE_ID, task=args.task, render_mode="rgb_array", termination_prob=0.0)
+    env = gym.make(sb3_trlsd_envs.MAZE_ID, task=args.task, render_mode="rgb_array", termination_prob=0.0)
     env.action_space.seed(args.seed)
     env.reset(seed=args.seed)
     for _ in range(args.steps):

@@ -3,7 +3,7 @@
 import gymnasium as gym
 import pytest
 
-import envs  # noqa: F401  (registers the maze)
+import sb3_trlsd_envs  # noqa: F401  (registers the maze)
 from sb3_trlsd import Transitions, collect_transitions
 
 MAZE_ID = "TRLSD/SharedDynamicsMaze-v0"

@@ -5,7 +5,7 @@ import pytest
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
-from envs.dynamics import (
+from sb3_trlsd_envs.dynamics import (
     ACTION_DIRECTIONS,
     DEFAULT_WALLS,
     EAST,

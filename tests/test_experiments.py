@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from matplotlib.image import imread
 
-from envs import MAZE_ID, expected_reward
+from sb3_trlsd_envs import MAZE_ID, expected_reward
 from sb3_trlsd import collect_transitions
 from sb3_trlsd.cli import main
 from sb3_trlsd.experiments import FIGURES, multitask, run_cache, runner
@@ -153,8 +153,8 @@ def test_fingerprint_covers_the_code_a_run_imports_and_not_the_reporting():
         "sb3_trlsd.trlsd",
         "sb3_trlsd.fqi",
         "sb3_trlsd.reward_heads",
-        "envs.maze",
-        "envs.dynamics",
+        "sb3_trlsd_envs.maze",
+        "sb3_trlsd_envs.dynamics",
     ):
         assert executed in modules
     for not_run in ("reporting", "figures", "multitask", "transfer"):

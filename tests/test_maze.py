@@ -8,7 +8,7 @@ import pytest
 from gymnasium.utils.env_checker import check_env as gym_check_env
 from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
-from envs import (
+from sb3_trlsd_envs import (
     CORNER_TASKS,
     MAZE_ID,
     N_TASKS,

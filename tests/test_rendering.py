@@ -6,9 +6,9 @@ import sys
 import numpy as np
 import pytest
 
-from envs import EAST, NORTH, SOUTH, WEST, SharedDynamicsMaze
-from envs.dynamics import DEFAULT_WALLS
-from envs.rendering import render_maze, save_maze_png
+from sb3_trlsd_envs import EAST, NORTH, SOUTH, WEST, SharedDynamicsMaze
+from sb3_trlsd_envs.dynamics import DEFAULT_WALLS
+from sb3_trlsd_envs.rendering import render_maze, save_maze_png
 
 SIZE = 400
 PIXELS_PER_UNIT = SIZE / 5
@@ -109,7 +109,7 @@ def test_malformed_overlays_raise_value_errors_naming_them(overlay, value):
 
 def test_importing_envs_does_not_import_matplotlib():
     """matplotlib is loaded only when drawing, so creating and stepping envs stays light."""
-    code = "import sys, envs; assert 'matplotlib' not in sys.modules"
+    code = "import sys, sb3_trlsd_envs; assert 'matplotlib' not in sys.modules"
     subprocess.run([sys.executable, "-c", code], check=True)
 
 

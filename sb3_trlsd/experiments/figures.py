@@ -10,8 +10,8 @@ from typing import Any
 
 import numpy as np
 
-from envs import task_cell
-from envs.dynamics import DEFAULT_WALLS
+from sb3_trlsd_envs import task_cell
+from sb3_trlsd_envs.dynamics import DEFAULT_WALLS
 from sb3_trlsd.experiments.reporting import (
     mean_and_standard_error,
     plot_curves,
@@ -46,7 +46,7 @@ def save_figure(figure: Any, path: Path, title: str) -> None:
 
 def draw_snapshot(ax: Any, snapshot: Snapshot, task: int, title: str) -> None:
     """A snapshot in the style of the paper's Figures 1-4: R^ in green, trajectory in blue, policy in red."""
-    from envs.rendering import draw_maze
+    from sb3_trlsd_envs.rendering import draw_maze
 
     draw_maze(
         ax,

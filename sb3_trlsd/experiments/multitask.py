@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from envs import N_TASKS
+from sb3_trlsd_envs import N_TASKS
 from sb3_trlsd.experiments.figures import new_figure, save_figure, update_counts
 from sb3_trlsd.experiments.reporting import (
     mean_and_standard_error,

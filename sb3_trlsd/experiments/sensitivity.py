@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from envs import N_TASKS
+from sb3_trlsd_envs import N_TASKS
 from sb3_trlsd.experiments.figures import new_figure, save_figure, update_counts
 from sb3_trlsd.experiments.reporting import summary, window_means, write_curves_csv, write_json
 from sb3_trlsd.experiments.runner import Method, transfer_runs
