@@ -28,12 +28,12 @@ import gymnasium as gym
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from sb3_trlsd_envs import MAZE_ID, expected_reward
 from sb3_trlsd import TRLSD, collect_transitions
 from sb3_trlsd.experiments import reproduce
 from sb3_trlsd.experiments.runner import Method, transfer_run
 from sb3_trlsd.experiments.transfer import DEFAULT_RUNS, METHODS
 from sb3_trlsd.features import grid_centres, rbf_features
+from sb3_trlsd_envs import MAZE_ID, expected_reward
 
 GAMMA, KAPPA, SIGMA, RBF_SIGMA, UPDATE_RATIO, RIDGE = 0.9, 0.1, 0.2, 0.2, 2.0, 1e-3
 TOL = inspect.signature(TRLSD).parameters["fqi_tol"].default  # the same stopping rule as the fast path

@@ -21,8 +21,8 @@ import gymnasium as gym
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from sb3_trlsd_envs.maze import N_TASKS, expected_reward
 from sb3_trlsd import TRLSD, collect_transitions
+from sb3_trlsd_envs.maze import N_TASKS, expected_reward
 
 MAZE_ID = "TRLSD/SharedDynamicsMaze-v0"
 METHODS = {

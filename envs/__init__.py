@@ -14,7 +14,14 @@ from sb3_trlsd_envs.dynamics import (
     maze_step,
     segment_crosses_walls,
 )
-from sb3_trlsd_envs.maze import CORNER_TASKS, N_TASKS, SharedDynamicsMaze, expected_reward, task_cell, task_index
+from sb3_trlsd_envs.maze import (
+    CORNER_TASKS,
+    N_TASKS,
+    SharedDynamicsMaze,
+    expected_reward,
+    task_cell,
+    task_index,
+)
 from sb3_trlsd_envs.rendering import draw_maze, render_maze, save_maze_png
 
 __all__ = [

@@ -9,7 +9,17 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from sb3_trlsd_envs.dynamics import DEFAULT_WALLS, EAST, MAZE_SIZE, NORTH, SOUTH, WEST, cell_of, make_walls, maze_step
+from sb3_trlsd_envs.dynamics import (
+    DEFAULT_WALLS,
+    EAST,
+    MAZE_SIZE,
+    NORTH,
+    SOUTH,
+    WEST,
+    cell_of,
+    make_walls,
+    maze_step,
+)
 
 __all__ = [
     "CORNER_TASKS",

@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 from gymnasium import spaces
 
-from sb3_trlsd_envs.maze import expected_reward
 from sb3_trlsd import KnownRewardHead, RBFGrid, RidgeRewardHead, SharedDynamicsReplayBuffer
 from sb3_trlsd.buffers import state_space_of
+from sb3_trlsd_envs.maze import expected_reward
 from tests.conftest import MAZE_ID
 
 

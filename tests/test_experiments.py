@@ -13,7 +13,6 @@ import numpy as np
 import pytest
 from matplotlib.image import imread
 
-from sb3_trlsd_envs import MAZE_ID, expected_reward
 from sb3_trlsd import collect_transitions
 from sb3_trlsd.cli import main
 from sb3_trlsd.experiments import FIGURES, multitask, run_cache, runner
@@ -25,6 +24,7 @@ from sb3_trlsd.experiments.reporting import (
 )
 from sb3_trlsd.experiments.run_cache import run_key
 from sb3_trlsd.experiments.runner import Method, RunRecord, multitask_run, run_jobs, transfer_run
+from sb3_trlsd_envs import MAZE_ID, expected_reward
 
 CALL_LOG_VARIABLE = "SB3_TRLSD_TEST_CALL_LOG"  # file where counted_transfer_run writes the seed of each call
 

@@ -7,9 +7,9 @@ from stable_baselines3.common.callbacks import BaseCallback
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 from tensorboard.backend.event_processing.event_file_loader import EventFileLoader
 
-from sb3_trlsd_envs.maze import N_TASKS
 from sb3_trlsd import TRLSD, Transitions
 from sb3_trlsd.evaluation import greedy_expected_rewards
+from sb3_trlsd_envs.maze import N_TASKS
 from tests.conftest import MAZE_ID
 
 

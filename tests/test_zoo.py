@@ -7,9 +7,9 @@ import pytest
 import yaml
 from tensorboard.backend.event_processing.event_file_loader import EventFileLoader
 
-from sb3_trlsd_envs import MAZE_ID
 from sb3_trlsd import TRLSD
 from sb3_trlsd.cli import main
+from sb3_trlsd_envs import MAZE_ID
 
 optuna = pytest.importorskip("optuna")
 pytest.importorskip("rl_zoo3")

@@ -10,8 +10,6 @@ from typing import Any
 
 import numpy as np
 
-from sb3_trlsd_envs import task_cell
-from sb3_trlsd_envs.dynamics import DEFAULT_WALLS
 from sb3_trlsd.experiments.reporting import (
     mean_and_standard_error,
     plot_curves,
@@ -21,6 +19,8 @@ from sb3_trlsd.experiments.reporting import (
     write_json,
 )
 from sb3_trlsd.experiments.runner import Method, RunRecord, Snapshot
+from sb3_trlsd_envs import task_cell
+from sb3_trlsd_envs.dynamics import DEFAULT_WALLS
 
 __all__ = ["draw_snapshot", "new_figure", "save_figure", "update_counts", "write_transfer_figure"]
 

@@ -8,9 +8,9 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from sb3_trlsd_envs import N_TASKS
 from sb3_trlsd.experiments.figures import write_transfer_figure
 from sb3_trlsd.experiments.runner import Method, transfer_run, transfer_runs
+from sb3_trlsd_envs import N_TASKS
 
 DEFAULT_RUNS = 100  # the paper gives no count for Figure 1: 4 runs of each of the 25 tasks
 PICTURE_TASK = 4  # tau_15, the bottom-left corner cell

@@ -13,7 +13,6 @@ from pathlib import Path
 
 import numpy as np
 
-from sb3_trlsd_envs import N_TASKS
 from sb3_trlsd.experiments.figures import new_figure, save_figure, update_counts
 from sb3_trlsd.experiments.reporting import (
     mean_and_standard_error,
@@ -23,6 +22,7 @@ from sb3_trlsd.experiments.reporting import (
     write_json,
 )
 from sb3_trlsd.experiments.runner import Method, multitask_run, run_jobs
+from sb3_trlsd_envs import N_TASKS
 
 DEFAULT_RUNS = 200  # paper: 200 runs
 TURNS = 20

@@ -11,10 +11,10 @@ from pathlib import Path
 
 import numpy as np
 
-from sb3_trlsd_envs import N_TASKS
 from sb3_trlsd.experiments.figures import new_figure, save_figure, update_counts
 from sb3_trlsd.experiments.reporting import summary, window_means, write_curves_csv, write_json
 from sb3_trlsd.experiments.runner import Method, transfer_runs
+from sb3_trlsd_envs import N_TASKS
 
 DEFAULT_RUNS = 100  # runs per parameter value (the paper does not say; Figure 5 uses 500)
 KAPPAS = (0.01, 0.03, 0.1, 0.3, 1.0)

@@ -9,9 +9,9 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from sb3_trlsd_envs import N_TASKS
 from sb3_trlsd.experiments.figures import write_transfer_figure
 from sb3_trlsd.experiments.runner import Method, transfer_runs
+from sb3_trlsd_envs import N_TASKS
 
 DEFAULT_RUNS = 500  # paper: 500 independent runs, 20 per task
 METHODS = [
