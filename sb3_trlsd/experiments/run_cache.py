@@ -5,10 +5,10 @@ A run is a pure function of its arguments (its seed included), so a finished one
 the same function is called with the same arguments by the same code. Its key is a sha256 over the
 function's qualified name, a canonical form of its arguments and a fingerprint of the code the run
 executes: the modules of ``sb3_trlsd`` and ``sb3_trlsd_envs`` that the function's module imports,
-directly or not (``code_fingerprint``). An edit of any of them makes the run a miss (it may change the results); an edit
-of a module the run does not import (a figure's plotting and tables, the command line) does not, nor does
-anything else (installed dependencies are not part of the key). The runs are pickles: a cache directory
-must be as trusted as the code.
+directly or not (``code_fingerprint``). An edit of any of them makes the run a miss (it may change the
+results); an edit of a module the run does not import (a figure's plotting and tables, the command line)
+does not, nor does anything else (installed dependencies are not part of the key). The runs are pickles:
+a cache directory must be as trusted as the code.
 """
 
 from __future__ import annotations
