@@ -32,11 +32,16 @@ from sb3_trlsd import TRLSD, collect_transitions
 from sb3_trlsd.experiments import reproduce
 from sb3_trlsd.experiments.runner import Method, transfer_run
 from sb3_trlsd.experiments.transfer import DEFAULT_RUNS, METHODS
-from sb3_trlsd.features import grid_centres, rbf_features
+from sb3_trlsd.features import gaussian_similarity, grid_centres
 from sb3_trlsd_envs import MAZE_ID, expected_reward
 
 GAMMA, KAPPA, SIGMA, RBF_SIGMA, UPDATE_RATIO, RIDGE = 0.9, 0.1, 0.2, 0.2, 2.0, 1e-3
 TOL = inspect.signature(TRLSD).parameters["fqi_tol"].default  # the same stopping rule as the fast path
+
+
+def rbf_features(states: np.ndarray, centres: np.ndarray, sigma: float) -> np.ndarray:
+    """phi_ij(s) = exp(-||s - s_ij||^2 / 2 sigma^2) for every centre (eq. 11), one exponential per centre."""
+    return gaussian_similarity(states, centres, sigma)
 
 
 def straightforward_run(

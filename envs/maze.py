@@ -358,6 +358,17 @@ class SharedDynamicsMaze(gym.Env):
         truncated = bool(self.np_random.random() < self.termination_prob)
         return self._observation(), float(reward), False, truncated, self._info()
 
+    def task_picture(self, view: Any) -> np.ndarray:
+        """
+        A picture of a task's learner on this maze (R^ and greedy policy, its optimism), for TensorBoard.
+
+        :param view: ``task``, ``estimate``, ``bonus``, ``q_values`` and ``trajectory`` of the learner
+        :return: an RGB image (H, W, 3), uint8
+        """
+        from sb3_trlsd_envs.pictures import task_picture
+
+        return task_picture(view, self.walls)
+
     def render(self):
         if self.render_mode is None:
             gym.logger.warn(

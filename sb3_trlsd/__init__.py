@@ -9,17 +9,20 @@ from sb3_trlsd.data import Transitions, collect_transitions
 from sb3_trlsd.features import RBFGrid
 from sb3_trlsd.policies import LinearPolicy, MlpPolicy
 from sb3_trlsd.reward_heads import (
+    GridCells,
     KnownRewardHead,
     RewardHead,
     RidgeRewardHead,
     TabularRewardHead,
     make_reward_head,
 )
+from sb3_trlsd.task_learner import TaskLearner
 from sb3_trlsd.trlsd import TRLSD
 from sb3_trlsd.version import __version__
 
 __all__ = [
     "TRLSD",
+    "GridCells",
     "KnownRewardHead",
     "LinearPolicy",
     "MlpPolicy",
@@ -28,6 +31,7 @@ __all__ = [
     "RidgeRewardHead",
     "SharedDynamicsReplayBuffer",
     "TabularRewardHead",
+    "TaskLearner",
     "Transitions",
     "__version__",
     "collect_transitions",

@@ -1,67 +1,64 @@
-"""The replay buffer shared by every task: it keeps each transition with its task and relabels rewards.
+"""The replay buffer shared by every task: each transition with its task, and nothing task-specific.
 
 Section 2 of the paper: any transition xi_tau' = <tau', s, a, r, s'> collected on a task tau' serves a
 target task tau once its reward is replaced by the target's reward proxy,
-psi(xi_tau') = <tau, s, a, R~_tau(s), s'>. The buffer does that relabelling the way SB3's
-``HerReplayBuffer`` relabels goals, through a reward head it is given; it knows nothing about how the
-relabelled set is then used (Fitted-Q Iteration, in ``TRLSD``).
+psi(xi_tau') = <tau, s, a, R~_tau(s), s'>. The buffer keeps the transitions; whoever relabels them (a
+task's ``TaskLearner``) or fits on them (the Q-function's fit rows) reads the rows added since its last
+read through a ``BufferCursor``, so that a refit costs only the new rows.
 """
 
 from __future__ import annotations
 
+import secrets
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.buffers import ReplayBuffer
-from stable_baselines3.common.type_aliases import ReplayBufferSamples
 
 from sb3_trlsd.data import Transitions
-from sb3_trlsd.reward_heads import RewardHead, RewardTracker
+from sb3_trlsd.observations import split_observation, state_space_of, task_count_of
 
-__all__ = ["SharedDynamicsReplayBuffer", "state_space_of"]
+__all__ = ["STORED_FIELDS", "BufferCursor", "SharedDynamicsReplayBuffer"]
+
+# The per-row arrays of the buffer, in the column order of ``packed_rows``.
+STORED_FIELDS = (
+    "observations",
+    "next_observations",
+    "actions",
+    "rewards",
+    "dones",
+    "timeouts",
+    "tasks",
+    "has_reward",
+)
 
 
-def state_space_of(observation_space: spaces.Space) -> spaces.Box:
+@dataclass
+class BufferCursor:
     """
-    The Box holding the state: the observation space itself, or its ``"state"`` entry for the
-    ``{"state", "task"}`` Dict observations of multi-task envs.
+    How far a reader of the buffer has read: the buffer's epoch then, and the rows read (in insertion order).
 
-    :raises ValueError: for any other observation space
+    :param epoch: the buffer's ``epoch`` at the last read (None: never read)
+    :param n_read: rows read so far
     """
-    if isinstance(observation_space, spaces.Dict) and isinstance(
-        observation_space.spaces.get("state"), spaces.Box
-    ):
-        state_space = observation_space["state"]
-        task_space = observation_space.spaces.get("task")
-        if not isinstance(task_space, spaces.Discrete) or len(observation_space.spaces) != 2:
-            raise ValueError(
-                "observation_space must be a Box or a Dict with exactly a 'state' Box and a 'task' Discrete, "
-                f"got {observation_space}"
-            )
-    elif isinstance(observation_space, spaces.Box):
-        state_space = observation_space
-    else:
-        raise ValueError(
-            "observation_space must be a Box or a Dict with a 'state' Box and a 'task' Discrete, "
-            f"got {observation_space}"
-        )
-    assert isinstance(state_space, spaces.Box)
-    if len(state_space.shape) != 1:
-        raise ValueError(f"the state Box must be one-dimensional (a vector), got shape {state_space.shape}")
-    return state_space
+
+    epoch: int | None = None
+    n_read: int = 0
 
 
 class SharedDynamicsReplayBuffer(ReplayBuffer):
     """
-    Replay buffer of every transition of every task, with its task and its observed reward, that hands
-    out the whole set (or a batch) relabelled for a target task.
+    Replay buffer of every transition of every task, with its task and its observed reward.
 
     Observations are stored as their state only: with ``{"state", "task"}`` Dict observations the task goes
     to its own array, with a plain Box observation every transition belongs to task 0. Transitions loaded
-    from elsewhere may come without their rewards (the paper discards the source rewards): those rows are
-    used for the dynamics only, never to fit a reward head.
+    from elsewhere may come without their rewards (the paper discards the source rewards): ``has_reward``
+    marks the rows whose reward was observed. Everything is validated before it is stored: a transition
+    with a non-finite value, the wrong shape or a task out of range raises a ValueError and leaves the
+    buffer as it was.
 
     :param buffer_size: Max number of transitions
     :param observation_space: the env's observation space (Box, or Dict with ``state`` and ``task``)
@@ -88,6 +85,8 @@ class SharedDynamicsReplayBuffer(ReplayBuffer):
     ):
         if optimize_memory_usage:
             raise ValueError("SharedDynamicsReplayBuffer does not support optimize_memory_usage=True")
+        if not isinstance(action_space, spaces.Discrete):
+            raise ValueError(f"SharedDynamicsReplayBuffer needs a Discrete action space, got {action_space}")
         super().__init__(
             buffer_size,
             state_space_of(observation_space),
@@ -97,19 +96,21 @@ class SharedDynamicsReplayBuffer(ReplayBuffer):
             optimize_memory_usage=False,
             handle_timeout_termination=handle_timeout_termination,
         )
+        self.n_tasks = task_count_of(observation_space)
         self.tasks = np.zeros((self.buffer_size, self.n_envs), dtype=np.int64)
         self.has_reward = np.zeros((self.buffer_size, self.n_envs), dtype=bool)
-        # Rows are numbered in insertion order; n_overwritten counts rows lost to wrap-around, which
-        # invalidates the incremental relabelling caches below.
-        self.n_added = 0
-        self.n_overwritten = 0
-        self._trackers: dict[int, tuple[RewardHead, RewardTracker, int]] = {}
+        self.n_added = 0  # rows ever added since the epoch began, in insertion order
+        self.epoch = secrets.randbits(62)  # changes whenever rows are lost (wrap-around, reset)
 
-    def __getstate__(self) -> dict[str, Any]:
-        # The relabelling caches hold references to reward heads and are rebuilt on demand.
-        state = self.__dict__.copy()
-        state["_trackers"] = {}
-        return state
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        # A buffer read back from disk is a new buffer for the cursors of the model that loads it.
+        self.__dict__.update(state)
+        self.epoch = secrets.randbits(62)
+
+    def reset(self) -> None:
+        super().reset()
+        self.n_added = 0
+        self.epoch = secrets.randbits(62)
 
     # ----------------------------------------------------------------- storing
     def add(
@@ -121,39 +122,36 @@ class SharedDynamicsReplayBuffer(ReplayBuffer):
         done: np.ndarray,
         infos: list[dict[str, Any]],
     ) -> None:
-        """Store one step of the ``n_envs`` envs, as SB3's ``collect_rollouts`` calls it."""
-        if isinstance(obs, dict):
-            tasks = np.asarray(obs["task"]).reshape(self.n_envs)
-            obs, next_obs = obs["state"], next_obs["state"]  # type: ignore[index]
-        else:
-            tasks = np.zeros(self.n_envs, dtype=np.int64)
+        """Store one step of the ``n_envs`` envs, as SB3's ``collect_rollouts`` calls it (validated first)."""
+        dim = self.obs_shape[0]
+        states, tasks = split_observation(obs, dim)
+        next_states, _ = split_observation(next_obs, dim)
+        actions = np.asarray(action).reshape(-1)
+        rewards = np.asarray(reward, dtype=np.float64).reshape(-1)
+        self._check_rows(states, next_states, actions, rewards, tasks, expected_rows=self.n_envs)
         self._before_write(1)
         self.tasks[self.pos] = tasks
         self.has_reward[self.pos] = True
-        super().add(obs, next_obs, action, reward, done, infos)  # type: ignore[arg-type]
-        self.n_added += 1
+        super().add(states, next_states, action, reward, done, infos)
+        self.n_added += self.n_envs
 
     def add_transitions(self, transitions: Transitions, keep_rewards: bool = False) -> None:
         """
         Append transitions collected elsewhere (e.g. by ``collect_transitions`` on other tasks).
 
         :param transitions: the transitions to append
-        :param keep_rewards: keep their rewards for fitting reward heads; False (the paper's setting)
-            keeps them for the dynamics only
+        :param keep_rewards: keep their rewards (``has_reward``); False (the paper's setting) stores 0
         """
         if self.n_envs != 1:
             raise ValueError("add_transitions needs a buffer with n_envs=1")
-        if transitions.state_dim != self.obs_shape[0]:
-            raise ValueError(
-                f"transitions have states of dimension {transitions.state_dim}, "
-                f"the env's states have dimension {self.obs_shape[0]}"
-            )
-        assert isinstance(self.action_space, spaces.Discrete)
-        if (
-            transitions.actions.min(initial=0) < 0
-            or transitions.actions.max(initial=0) >= self.action_space.n
-        ):
-            raise ValueError(f"transitions have actions outside the env's action space {self.action_space}")
+        self._check_rows(
+            transitions.states,
+            transitions.next_states,
+            transitions.actions,
+            transitions.rewards,
+            transitions.tasks,
+            expected_rows=len(transitions),
+        )
         # Written in chunks that stop at the end of the ring.
         start = 0
         while start < len(transitions):
@@ -175,10 +173,50 @@ class SharedDynamicsReplayBuffer(ReplayBuffer):
                 self.full, self.pos = True, 0
             start = stop
 
+    def _check_rows(
+        self,
+        states: np.ndarray,
+        next_states: np.ndarray,
+        actions: np.ndarray,
+        rewards: np.ndarray,
+        tasks: np.ndarray,
+        expected_rows: int,
+    ) -> None:
+        """A ValueError naming what is wrong, before anything is written."""
+        dim = self.obs_shape[0]
+        for name, value in (("state", states), ("next state", next_states)):
+            if np.shape(value) != (expected_rows, dim):
+                raise ValueError(
+                    f"{name}s must have shape ({expected_rows}, {dim}) (the env's state dimension is {dim}), "
+                    f"got {np.shape(value)}"
+                )
+            if not np.all(np.isfinite(value)):
+                bad = np.asarray(value)[~np.isfinite(value).all(axis=1)]
+                raise ValueError(f"a {name} is not finite (NaN or inf): {bad[:3]}")
+        if np.shape(rewards) != (expected_rows,) or np.shape(actions) != (expected_rows,):
+            raise ValueError(
+                f"expected {expected_rows} rewards and actions, got {np.shape(rewards)}, {np.shape(actions)}"
+            )
+        if not np.all(np.isfinite(rewards)):
+            raise ValueError(
+                f"a reward is not finite (NaN or inf): {np.asarray(rewards)[~np.isfinite(rewards)][:3]}"
+            )
+        assert isinstance(self.action_space, spaces.Discrete)
+        if len(actions) and (
+            np.any(actions != np.round(actions)) or actions.min() < 0 or actions.max() >= self.action_space.n
+        ):
+            raise ValueError(
+                f"actions must be integers in 0..{self.action_space.n - 1}, got {np.unique(actions)}"
+            )
+        if len(tasks) and (tasks.min() < 0 or tasks.max() >= self.n_tasks):
+            raise ValueError(
+                f"tasks must be in 0..{self.n_tasks - 1} (the env's tasks), got {np.unique(tasks)}"
+            )
+
     def _before_write(self, n_rows: int) -> None:
         if self.full:
-            self.n_overwritten += n_rows
-            self._trackers.clear()
+            # Rows are about to be lost: every cursor must start over.
+            self.epoch = secrets.randbits(62)
 
     # ----------------------------------------------------------------- reading
     def _flat(self, array: np.ndarray) -> np.ndarray:
@@ -186,79 +224,106 @@ class SharedDynamicsReplayBuffer(ReplayBuffer):
         array = np.concatenate([array[self.pos :], array[: self.pos]]) if self.full else array[: self.pos]
         return array.reshape(-1, *array.shape[2:])
 
-    def transitions(self) -> Transitions:
-        """Every stored transition, oldest first, with its observed reward (0 where it was discarded)."""
-        terminated = self._flat(self.dones).astype(bool)
+    def transitions(self, start: int = 0) -> Transitions:
+        """
+        The stored transitions, oldest first, with their observed rewards (0 where they were discarded).
+
+        :param start: the first row (0: all of them)
+        """
+        terminated = self._flat(self.dones)[start:].astype(bool)
         if self.handle_timeout_termination:
-            truncated = self._flat(self.timeouts).astype(bool)
+            truncated = self._flat(self.timeouts)[start:].astype(bool)
         else:
             truncated = np.zeros_like(terminated)
         return Transitions(
-            states=self._flat(self.observations).astype(np.float64),
-            actions=self._flat(self.actions)[:, 0].astype(np.int64),
-            next_states=self._flat(self.next_observations).astype(np.float64),
-            rewards=self._flat(self.rewards).astype(np.float64),
-            tasks=self._flat(self.tasks),
+            states=self._flat(self.observations)[start:].astype(np.float64),
+            actions=self._flat(self.actions)[start:, 0].astype(np.int64),
+            next_states=self._flat(self.next_observations)[start:].astype(np.float64),
+            rewards=self._flat(self.rewards)[start:].astype(np.float64),
+            tasks=self._flat(self.tasks)[start:],
             truncations=truncated,
             terminations=terminated & ~truncated,
         )
 
-    def task_samples(self, task: int) -> tuple[np.ndarray, np.ndarray]:
+    def read_new(self, cursor: BufferCursor) -> tuple[Transitions, bool]:
         """
-        The start states and observed rewards of the transitions of ``task`` whose reward was kept:
-        the sample set Xi_tau a reward head is fitted on.
+        The rows a reader has not read yet, and move its cursor past them.
 
-        :return: states (m, d) and rewards (m,)
+        :param cursor: the reader's cursor, updated in place
+        :return: the new rows (oldest first) and whether the reader must start over (the rows it read
+            before are gone: the buffer wrapped around, was reset, or is another buffer); then every row
+            is returned
         """
-        mask = (self._flat(self.tasks) == task) & self._flat(self.has_reward)
-        return self._flat(self.observations)[mask].astype(np.float64), self._flat(self.rewards)[mask].astype(
-            np.float64
+        n_stored = self.size() * self.n_envs
+        restart = cursor.epoch != self.epoch or cursor.n_read > self.n_added
+        first = 0 if restart else n_stored - (self.n_added - cursor.n_read)
+        cursor.epoch, cursor.n_read = self.epoch, self.n_added
+        return self.transitions(first), restart
+
+    def recent_states(self, task: int, n_states: int) -> np.ndarray:
+        """
+        The start states of the latest ``n_states`` transitions of ``task`` whose reward was observed (its
+        online trajectory), with a row of NaN after each reset, where a drawn line must break.
+
+        :return: (t, d)
+        """
+        rows = np.flatnonzero((self._flat(self.tasks) == task) & self._flat(self.has_reward))[-n_states:]
+        states = self._flat(self.observations)[rows].astype(np.float64)
+        breaks = self._flat(self.dones)[rows].astype(bool)
+        out = []
+        for state, done in zip(states, breaks, strict=True):
+            out.append(state)
+            if done:
+                out.append(np.full(len(state), np.nan))
+        return np.array(out).reshape(-1, self.obs_shape[0])
+
+    # ------------------------------------------------------------ saving rows
+    def packed_rows(self) -> np.ndarray:
+        """
+        Every stored row, oldest first, as one float64 array (float32 states, integer actions and tasks,
+        and flags are all exact in float64): columns state (d), next state (d), action, reward, done,
+        timeout, task, has_reward. ``restore_packed_rows`` takes it back.
+
+        :return: (n, 2 d + 6)
+        """
+        n = self.size() * self.n_envs
+        columns = [
+            self._flat(getattr(self, name)).reshape(n, -1).astype(np.float64) for name in STORED_FIELDS
+        ]
+        return np.concatenate(columns, axis=1) if n else np.zeros((0, 2 * self.obs_shape[0] + 6))
+
+    def restore_packed_rows(self, rows: np.ndarray) -> None:
+        """
+        Empty the buffer and store the rows of ``packed_rows`` back, oldest first.
+
+        :param rows: (n, 2 d + 6)
+        :raises ValueError: when the rows do not fit this buffer (size, state dimension, tasks, actions)
+        """
+        d = self.obs_shape[0]
+        rows = np.asarray(rows, dtype=np.float64)
+        if rows.ndim != 2 or rows.shape[1] != 2 * d + 6:
+            raise ValueError(
+                f"packed rows must have shape (n, {2 * d + 6}) for states of dimension {d}, got {rows.shape}"
+            )
+        n = len(rows)
+        if n > self.buffer_size or self.n_envs != 1:
+            raise ValueError(
+                f"{n} rows do not fit a buffer of size {self.buffer_size} with n_envs={self.n_envs}"
+            )
+        columns = dict(
+            zip(STORED_FIELDS, np.split(rows, np.cumsum([d, d, 1, 1, 1, 1, 1]), axis=1), strict=True)
         )
-
-    def relabelled_rewards(self, task: int, head: RewardHead) -> np.ndarray:
-        """
-        R~_tau(s) at the start state of every stored transition, oldest first (Psi of section 2).
-
-        Kept incrementally per task: between two calls only the new transitions and the head's new
-        samples are folded in (see ``RewardHead.tracker``).
-
-        :param task: the target task tau
-        :param head: the reward head of tau
-        :return: rewards (n,)
-        """
-        cached = self._trackers.get(task)
-        if cached is None or cached[0] is not head or cached[2] != self.n_overwritten:
-            states = self._flat(self.observations).astype(np.float64)
-            tracker = head.tracker(states)
-        else:
-            tracker = cached[1]
-            n_tracked = tracker.n_states
-            n_stored = self.size() * self.n_envs
-            if n_stored > n_tracked:
-                tracker.extend(self._flat(self.observations)[n_tracked:].astype(np.float64))
-        self._trackers[task] = (head, tracker, self.n_overwritten)
-        return tracker.optimistic()
-
-    def relabelled(self, task: int, head: RewardHead) -> Transitions:
-        """Every stored transition cast on ``task``: rewards replaced by ``head``'s R~ (psi, section 2)."""
-        transitions = self.transitions()
-        return Transitions(
-            states=transitions.states,
-            actions=transitions.actions,
-            next_states=transitions.next_states,
-            rewards=self.relabelled_rewards(task, head),
-            tasks=np.full(len(transitions), task, dtype=np.int64),
-            truncations=transitions.truncations,
-            terminations=transitions.terminations,
+        self._check_rows(
+            columns["observations"],
+            columns["next_observations"],
+            columns["actions"][:, 0],
+            columns["rewards"][:, 0],
+            columns["tasks"][:, 0].astype(np.int64),
+            expected_rows=n,
         )
-
-    def sample_relabelled(self, batch_size: int, task: int, head: RewardHead) -> ReplayBufferSamples:
-        """
-        A uniformly sampled batch whose rewards are ``head``'s R~ for ``task``, the way
-        ``HerReplayBuffer`` relabels goals at sample time. Observations are the raw states (no
-        ``VecNormalize``: the reward head is defined on raw states).
-        """
-        samples = self.sample(batch_size)
-        states = samples.observations.cpu().numpy().astype(np.float64)
-        rewards = head.optimistic(states).astype(np.float32).reshape(-1, 1)
-        return samples._replace(rewards=self.to_torch(rewards))
+        self.reset()
+        for name in STORED_FIELDS:
+            target = getattr(self, name)
+            target[:n] = columns[name].reshape(n, *target.shape[1:]).astype(target.dtype)
+        self.pos, self.full = n % self.buffer_size, n == self.buffer_size
+        self.n_added = n

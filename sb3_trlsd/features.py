@@ -1,4 +1,4 @@
-"""Gaussian RBF features and similarity measures (paper, eq. 3, 6, 7, 11), vectorised over batches.
+"""Gaussian RBF features and the similarity of eq. 6 (eq. 7 is eq. 6 on features), vectorised over batches.
 
 States and features are float64 arrays with one row per point: states (n, d), features phi (n, k).
 Distances that overflow (states beyond ~1e150) count as infinite, so their similarity is 0, never NaN.
@@ -11,15 +11,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from gymnasium import spaces
 
-__all__ = [
-    "RBFGrid",
-    "feature_similarity",
-    "gaussian_similarity",
-    "grid_centres",
-    "rbf_features",
-    "squared_distances",
-    "state_action_features",
-]
+__all__ = ["RBFGrid", "gaussian_similarity", "grid_centres", "squared_distances"]
 
 
 def squared_distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -66,18 +58,6 @@ def gaussian_similarity(a: np.ndarray, b: np.ndarray, sigma: float) -> np.ndarra
     return np.exp(exponent, out=exponent)  # eq. 6
 
 
-def feature_similarity(phi_a: np.ndarray, phi_b: np.ndarray, sigma: float) -> np.ndarray:
-    """
-    S_Phi(s, s') = exp(-||Phi(s) - Phi(s')||^2 / (2 sigma^2)) (eq. 7): eq. 6 between feature vectors.
-
-    :param phi_a: features (n, k)
-    :param phi_b: features (m, k)
-    :param sigma: width of the Gaussian (> 0)
-    :return: (n, m), in [0, 1]
-    """
-    return gaussian_similarity(phi_a, phi_b, sigma)  # eq. 7
-
-
 def grid_centres(low: np.ndarray, high: np.ndarray, n_per_dim: int) -> np.ndarray:
     """
     Centres of the cells of a regular grid with ``n_per_dim`` cells per dimension over the box
@@ -95,34 +75,6 @@ def grid_centres(low: np.ndarray, high: np.ndarray, n_per_dim: int) -> np.ndarra
     ]
     # indexing="ij" makes the first axis vary slowest once flattened.
     return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, len(low))
-
-
-def rbf_features(states: np.ndarray, centres: np.ndarray, sigma: float) -> np.ndarray:
-    """
-    phi_ij(s) = S_S(s, s_ij) (eq. 11).
-
-    :param states: states (n, d)
-    :param centres: RBF centres (k, d)
-    :param sigma: width of the RBFs (> 0)
-    :return: Phi(s), (n, k)
-    """
-    return gaussian_similarity(states, centres, sigma)  # eq. 11
-
-
-def state_action_features(phi: np.ndarray, actions: np.ndarray, n_actions: int) -> np.ndarray:
-    """
-    Phi(s, a) = {1_{a = a'} Phi(s)}_{a'} (eq. 3): block a' (columns a' k .. (a' + 1) k - 1) holds Phi(s) on
-    the rows whose action is a', zeros elsewhere.
-
-    :param phi: Phi(s), (n, k)
-    :param actions: a, (n,) integers in 0..n_actions-1
-    :param n_actions: number of actions
-    :return: Phi(s, a), (n, n_actions * k)
-    """
-    n, k = phi.shape
-    blocks = np.zeros((n, n_actions, k))
-    blocks[np.arange(n), np.asarray(actions, dtype=np.int64)] = phi  # eq. 3
-    return blocks.reshape(n, n_actions * k)
 
 
 @dataclass(frozen=True)
@@ -175,7 +127,8 @@ class RBFGrid:
 
     def __call__(self, states: np.ndarray) -> np.ndarray:
         """
-        Phi(s), equal to ``rbf_features(states, self.centres, self.sigma)``.
+        Phi(s): phi_ij(s) = S_S(s, s_ij) for each centre s_ij (eq. 11), i.e.
+        ``gaussian_similarity(states, self.centres, self.sigma)``.
 
         On a grid the Gaussian factorises over the dimensions, so it takes n_per_dim exponentials per
         dimension instead of one per centre.

@@ -1,15 +1,16 @@
 """Task-conditioned greedy Q policies: one Q-function per task, chosen by ``obs["task"]``.
 
-``LinearPolicy`` is the paper's: Q_tau(s, a) = theta_tau,a . Phi(s) on Gaussian RBF features (eq. 3, 11),
-fitted in closed form by Fitted-Q Iteration. ``MlpPolicy`` swaps the linear map for a small network per
-task, fitted by fitted iterations. Both act greedily: the exploration comes from the optimistic rewards
-they are fitted on, not from the policy.
+``LinearPolicy`` is the paper's: Q_tau(s, a) = theta_tau,a . Phi(s) on the features Phi that TRLSD builds
+once and shares with its reward heads (eq. 3, 11), fitted in closed form by Fitted-Q Iteration.
+``MlpPolicy`` swaps the linear map for a small network per task, fitted by fitted iterations. Both act
+greedily: the exploration comes from the optimistic rewards they are fitted on, not from the policy. A
+policy holds Q-functions only: the transitions it is fitted on come as ``FitRows`` (``fit_rows.py``).
 """
 
 from __future__ import annotations
 
 from abc import abstractmethod
-from dataclasses import dataclass
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -18,21 +19,21 @@ from gymnasium import spaces
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
 
-from sb3_trlsd.arrays import GrowableArray
-from sb3_trlsd.buffers import state_space_of
-from sb3_trlsd.data import Transitions
 from sb3_trlsd.features import RBFGrid
-from sb3_trlsd.fqi import LinearFQISolver, fit_mlp_fqi, linear_q_values, make_q_network
+from sb3_trlsd.fit_rows import FitRows, LinearFitRows, TransitionRows
+from sb3_trlsd.fqi import (
+    DEFAULT_LINEAR_ITERATIONS,
+    DEFAULT_MLP_ITERATIONS,
+    DEFAULT_RIDGE,
+    DEFAULT_TOL,
+    FQIResult,
+    fit_mlp_fqi,
+    linear_q_values,
+    make_q_network,
+)
+from sb3_trlsd.observations import split_observation, state_space_of, task_count_of
 
-__all__ = ["FitStats", "LinearPolicy", "MlpPolicy", "TaskQPolicy"]
-
-
-@dataclass(frozen=True)
-class FitStats:
-    """What one Fitted-Q Iteration refit of a task's Q-function did."""
-
-    iterations: int
-    bellman_residual: float
+__all__ = ["LinearPolicy", "MlpPolicy", "TaskQPolicy"]
 
 
 class TaskQPolicy(BasePolicy):
@@ -52,25 +53,11 @@ class TaskQPolicy(BasePolicy):
             raise ValueError(f"action_space must be Discrete, got {action_space}")
         self.state_space = state_space_of(observation_space)
         self.n_actions = int(action_space.n)
-        task_space = observation_space["task"] if isinstance(observation_space, spaces.Dict) else None
-        self.n_tasks = int(task_space.n) if task_space is not None else 1
+        self.n_tasks = task_count_of(observation_space)
         self.lr_schedule = lr_schedule
-        # Which tasks have had their Q fitted at least once; a buffer so that it is saved with the weights.
-        self.register_buffer("fitted", th.zeros(self.n_tasks, dtype=th.bool))
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
         return {**super()._get_constructor_parameters(), "lr_schedule": self.lr_schedule}
-
-    def split_observation(self, observation: PyTorchObs) -> tuple[np.ndarray, np.ndarray]:
-        """States (n, d) as float64 and tasks (n,) of a batched observation tensor."""
-        if isinstance(observation, dict):
-            states = observation["state"]
-            tasks = observation["task"].cpu().numpy().reshape(-1).astype(np.int64)
-        else:
-            assert isinstance(observation, th.Tensor)
-            states = observation
-            tasks = np.zeros(len(observation), dtype=np.int64)
-        return states.cpu().numpy().reshape(len(tasks), -1).astype(np.float64), tasks
 
     def q_values(self, states: np.ndarray, tasks: np.ndarray | int) -> np.ndarray:
         """
@@ -91,146 +78,119 @@ class TaskQPolicy(BasePolicy):
         return q
 
     def _predict(self, observation: PyTorchObs, deterministic: bool = False) -> th.Tensor:
-        states, tasks = self.split_observation(observation)
+        states, tasks = split_observation(observation, self.state_space.shape[0])
         # Greedy whatever `deterministic` says: optimism, not dithering, drives the exploration.
         return th.as_tensor(self.q_values(states, tasks).argmax(axis=1), device=self.device)
 
     def fit(
         self,
         task: int,
-        transitions: Transitions,
+        rows: FitRows,
+        rewards: np.ndarray,
         gamma: float,
         max_iterations: int | None = None,
-        tol: float = 1e-4,
-    ) -> FitStats:
+        tol: float = DEFAULT_TOL,
+    ) -> FQIResult:
         """
-        Fit Q_task on transitions whose rewards are already those of ``task`` (see
-        ``SharedDynamicsReplayBuffer.relabelled``), warm-started from its current parameters.
+        Fit Q_task on the rows with the rewards of ``task`` (R~_task at each row's start state, in the rows'
+        order), warm-started from its current parameters.
 
         :param task: the task whose Q-function is refitted
-        :param transitions: the relabelled transition set
+        :param rows: the transitions, from ``new_fit_rows`` synced with the buffer
+        :param rewards: the relabelled rewards, (rows.n_transitions,)
         :param gamma: discount factor
         :param max_iterations: cap on the fitted iterations (None: ``default_max_iterations``)
         :param tol: relative stopping tolerance of the linear solver (the MLP runs all its iterations)
         :return: iterations and final Bellman residual
         """
         iterations = self.default_max_iterations if max_iterations is None else max_iterations
-        stats = self._fit(task, transitions, gamma, iterations, tol)
-        self.fitted[task] = True
-        return stats
+        return self._fit(task, rows, np.asarray(rewards, dtype=np.float64), gamma, iterations, tol)
+
+    @abstractmethod
+    def new_fit_rows(self) -> FitRows:
+        """An empty ``FitRows`` of the form this policy fits on."""
 
     @abstractmethod
     def _task_q_values(self, states: np.ndarray, task: int) -> np.ndarray: ...
 
     @abstractmethod
     def _fit(
-        self, task: int, transitions: Transitions, gamma: float, max_iterations: int, tol: float
-    ) -> FitStats: ...
+        self, task: int, rows: FitRows, rewards: np.ndarray, gamma: float, max_iterations: int, tol: float
+    ) -> FQIResult: ...
 
 
 class LinearPolicy(TaskQPolicy):
     """
-    Linear Q on Gaussian RBF features: Q_tau(s, a) = theta[tau, a] . Phi(s) (eq. 3, 11).
+    Linear Q on features: Q_tau(s, a) = theta[tau, a] . Phi(s) (eq. 3, 11).
 
     :param observation_space: a Box of states or a ``{"state", "task"}`` Dict
     :param action_space: a Discrete action space
     :param lr_schedule: unused (the fit is in closed form), kept for SB3's policy signature
-    :param rbf_per_dim: RBF centres per state dimension, at the centres of a regular grid over the state Box
-        (5 on the maze: the paper's 5x5 centres at (i - 0.5, j - 0.5))
-    :param rbf_sigma: width of the RBFs (eq. 11: 0.2)
+    :param features: Phi, states (n, d) -> (n, k), with an ``n_features`` attribute: ``TRLSD`` passes the
+        ``RBFGrid`` it shares with its reward heads (set its size with ``TRLSD(rbf_per_dim=...,
+        rbf_sigma=...)``)
     :param fqi_ridge: Tikhonov regularisation of each per-action least-squares projection of eq. 4, which
-        keeps it well posed where an RBF has (almost) no samples
+        keeps it well posed where a feature has (almost) no samples
     :param fqi_dtype: precision of the features the Fitted-Q iterations read, ``"float32"`` (default: half
         the memory to stream per iteration, ~1e-6 relative rounding in theta) or ``"float64"``; theta stays
         float64
     """
 
-    # Cold fits take ~130 iterations to reach the default tolerance with gamma = 0.9; warm ones far fewer.
-    default_max_iterations = 500
+    default_max_iterations = DEFAULT_LINEAR_ITERATIONS
 
     def __init__(
         self,
         observation_space: spaces.Space,
         action_space: spaces.Space,
         lr_schedule: Schedule,
-        rbf_per_dim: int = 5,
-        rbf_sigma: float = 0.2,
-        fqi_ridge: float = 1e-3,
+        features: RBFGrid | Callable[[np.ndarray], np.ndarray] | None = None,
+        fqi_ridge: float = DEFAULT_RIDGE,
         fqi_dtype: str = "float32",
     ):
         super().__init__(observation_space, action_space, lr_schedule)
-        if not np.all(np.isfinite(self.state_space.low)) or not np.all(np.isfinite(self.state_space.high)):
+        if features is None or not isinstance(getattr(features, "n_features", None), int):
             raise ValueError(
-                "LinearPolicy places its RBF grid over the state Box, whose bounds must be finite"
+                "LinearPolicy needs features (Phi with an n_features attribute, e.g. an RBFGrid); "
+                "TRLSD builds them from its rbf_per_dim and rbf_sigma"
             )
-        self.rbf_per_dim = rbf_per_dim
-        self.rbf_sigma = rbf_sigma
+        self.features = features
         self.fqi_ridge = fqi_ridge
         self.fqi_dtype = fqi_dtype
-        self.features = RBFGrid.for_box(self.state_space, n_per_dim=rbf_per_dim, sigma=rbf_sigma)
-        # The relabelled set only grows between refits (and is the same for every task): one solver keeps
-        # the features and per-action Gram factorisations of the rows it has seen, and ``_held`` those rows
-        # (s, a, s', terminated) to recognise them.
-        self._solver = LinearFQISolver(
-            self.features.n_features, self.n_actions, ridge=fqi_ridge, dtype=fqi_dtype
-        )
-        self._held = GrowableArray(2 * self.state_space.shape[0] + 2)
         self.register_buffer(
-            "theta", th.zeros(self.n_tasks, self.n_actions, self.features.n_features, dtype=th.float64)
+            "theta", th.zeros(self.n_tasks, self.n_actions, features.n_features, dtype=th.float64)
         )
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
         data = super()._get_constructor_parameters()
-        data.update(
-            rbf_per_dim=self.rbf_per_dim,
-            rbf_sigma=self.rbf_sigma,
-            fqi_ridge=self.fqi_ridge,
-            fqi_dtype=self.fqi_dtype,
-        )
+        data.update(features=self.features, fqi_ridge=self.fqi_ridge, fqi_dtype=self.fqi_dtype)
         return data
 
     def _task_q_values(self, states: np.ndarray, task: int) -> np.ndarray:
         return linear_q_values(self.features(states), self.theta[task].cpu().numpy())
 
-    def solver_for(self, transitions: Transitions) -> LinearFQISolver:
-        """
-        The FQI solver holding exactly these transitions, extended with their new rows when they extend
-        the rows it holds (a replay buffer that has not wrapped around), rebuilt otherwise.
-
-        :param transitions: the relabelled transition set (its rewards are not used here)
-        :return: the solver, whose ``fit`` takes the rewards of these transitions in their order
-        """
-        rows = np.column_stack(
-            [transitions.states, transitions.actions, transitions.next_states, transitions.terminations]
-        ).astype(np.float64)
-        held = len(self._held)
-        if len(rows) < held or not np.array_equal(rows[:held], self._held.view()):
-            self._solver = LinearFQISolver(
-                self.features.n_features, self.n_actions, ridge=self.fqi_ridge, dtype=self.fqi_dtype
-            )
-            self._held, held = GrowableArray(rows.shape[1]), 0
-        if len(rows) > held:
-            self._solver.extend(
-                self.features(transitions.states[held:]),
-                transitions.actions[held:],
-                self.features(transitions.next_states[held:]),
-                transitions.terminations[held:],
-            )
-            self._held.append(rows[held:])
-        return self._solver
+    def new_fit_rows(self) -> LinearFitRows:
+        return LinearFitRows(
+            self.features,
+            self.features.n_features,
+            self.n_actions,
+            ridge=self.fqi_ridge,
+            dtype=self.fqi_dtype,
+        )
 
     def _fit(
-        self, task: int, transitions: Transitions, gamma: float, max_iterations: int, tol: float
-    ) -> FitStats:
-        result = self.solver_for(transitions).fit(
-            transitions.rewards,
+        self, task: int, rows: FitRows, rewards: np.ndarray, gamma: float, max_iterations: int, tol: float
+    ) -> FQIResult:
+        assert isinstance(rows, LinearFitRows)
+        result = rows.solver.fit(
+            rewards,
             gamma=gamma,
             theta0=self.theta[task].cpu().numpy(),
             max_iterations=max_iterations,
             tol=tol,
         )
+        assert result.theta is not None
         self.theta[task] = th.as_tensor(result.theta, device=self.theta.device)
-        return FitStats(result.iterations, result.bellman_residual)
+        return result
 
 
 class MlpPolicy(TaskQPolicy):
@@ -245,8 +205,7 @@ class MlpPolicy(TaskQPolicy):
     :param batch_size: minibatch size of the regression
     """
 
-    # Each fitted iteration is a few epochs of regression, so a refit runs a bounded number of them.
-    default_max_iterations = 20
+    default_max_iterations = DEFAULT_MLP_ITERATIONS
 
     def __init__(
         self,
@@ -287,15 +246,20 @@ class MlpPolicy(TaskQPolicy):
         with th.no_grad():
             return self.q_networks[task](inputs).cpu().numpy().astype(np.float64)
 
+    def new_fit_rows(self) -> TransitionRows:
+        return TransitionRows(self.state_space.shape[0])
+
     def _fit(
-        self, task: int, transitions: Transitions, gamma: float, max_iterations: int, tol: float
-    ) -> FitStats:
-        result = fit_mlp_fqi(
-            self._inputs(transitions.states),
-            transitions.actions,
-            transitions.rewards,
-            self._inputs(transitions.next_states),
-            transitions.terminations,
+        self, task: int, rows: FitRows, rewards: np.ndarray, gamma: float, max_iterations: int, tol: float
+    ) -> FQIResult:
+        assert isinstance(rows, TransitionRows)
+        states, actions, next_states, terminated = rows.arrays()
+        return fit_mlp_fqi(
+            self._inputs(states),
+            actions,
+            rewards,
+            self._inputs(next_states),
+            terminated,
             network=self.q_networks[task],
             gamma=gamma,
             iterations=max_iterations,
@@ -303,4 +267,3 @@ class MlpPolicy(TaskQPolicy):
             batch_size=self.batch_size,
             learning_rate=self.lr_schedule(1.0),
         )
-        return FitStats(result.iterations, result.bellman_residual)

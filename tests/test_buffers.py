@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 from gymnasium import spaces
 
-from sb3_trlsd import KnownRewardHead, RBFGrid, RidgeRewardHead, SharedDynamicsReplayBuffer
-from sb3_trlsd.buffers import state_space_of
-from sb3_trlsd_envs.maze import expected_reward
+from sb3_trlsd import SharedDynamicsReplayBuffer
+from sb3_trlsd.buffers import STORED_FIELDS, BufferCursor
+from sb3_trlsd.observations import state_space_of
 from tests.conftest import MAZE_ID
 
 
@@ -33,30 +33,26 @@ def add_online(buffer, rng, task, n):
         buffer.add(obs, next_obs, np.array([[1]]), np.array([rng.normal()]), np.array([False]), [{}])
 
 
-def ridge_head(kappa=0.1):
-    return RidgeRewardHead(RBFGrid(low=(0, 0), high=(5, 5), n_per_dim=5, sigma=0.2), kappa=kappa, sigma=0.2)
-
-
 def test_source_rewards_are_discarded_unless_kept(maze_spaces, source_transitions):
-    """keep_rewards=False (the paper) must not leak the source task's rewards into its sample set Xi_tau."""
+    """keep_rewards=False (the paper) stores 0 and marks the rows as having no observed reward."""
     buffer = make_buffer(maze_spaces)
     buffer.add_transitions(source_transitions, keep_rewards=False)
-    states, rewards = buffer.task_samples(12)
-    assert len(states) == 0 and len(rewards) == 0
+    assert not buffer.transitions().rewards.any() and not buffer.has_reward[: buffer.pos].any()
     buffer.add_transitions(source_transitions, keep_rewards=True)
-    states, rewards = buffer.task_samples(12)
-    np.testing.assert_allclose(rewards, source_transitions.rewards, rtol=1e-6)
+    kept = buffer.transitions(start=len(source_transitions))
+    np.testing.assert_allclose(kept.rewards, source_transitions.rewards, rtol=1e-6)
+    assert buffer.has_reward[len(source_transitions) : buffer.pos].all()
     assert buffer.size() == 2 * len(source_transitions)
 
 
 def test_online_transitions_are_stored_with_their_task(maze_spaces):
-    """Each task's samples are exactly the transitions collected on it."""
+    """Each online transition keeps the task it was collected on, and its reward counts as observed."""
     buffer = make_buffer(maze_spaces)
     rng = np.random.default_rng(0)
     add_online(buffer, rng, task=3, n=5)
     add_online(buffer, rng, task=7, n=4)
-    assert len(buffer.task_samples(3)[0]) == 5 and len(buffer.task_samples(7)[0]) == 4
     np.testing.assert_array_equal(buffer.transitions().tasks, [3] * 5 + [7] * 4)
+    assert buffer.has_reward[:9].all()
 
 
 def test_transitions_keep_truncations_apart_from_terminations(maze_spaces, source_transitions):
@@ -70,50 +66,112 @@ def test_transitions_keep_truncations_apart_from_terminations(maze_spaces, sourc
 
 
 @pytest.mark.parametrize("buffer_size", [20_000, 3_500], ids=["no-wrap", "wrap-around"])
-def test_relabelled_rewards_follow_the_head_incrementally(maze_spaces, source_transitions, buffer_size):
-    """Cached relabelling equals R~ evaluated from scratch after interleaved head updates and new rows."""
+def test_a_cursor_reads_each_new_row_once_and_starts_over_when_rows_are_lost(
+    maze_spaces, source_transitions, buffer_size
+):
+    """read_new hands out exactly the rows added since the reader's last read, or all when any were lost."""
     buffer = make_buffer(maze_spaces, size=buffer_size)
+    cursor = BufferCursor()
     buffer.add_transitions(source_transitions)
-    head = ridge_head()
-    rng = np.random.default_rng(1)
-    for _ in range(3):
-        add_online(buffer, rng, task=0, n=300)
-        states, rewards = buffer.task_samples(0)
-        head.update(states[-300:], rewards[-300:])
-        relabelled = buffer.relabelled_rewards(0, head)
-        expected = head.optimistic(buffer.transitions().states)
-        np.testing.assert_allclose(relabelled, expected, rtol=1e-9, atol=1e-9)
+    rows, restart = buffer.read_new(cursor)
+    assert restart and len(rows) == buffer.size()
+    rows, restart = buffer.read_new(cursor)
+    assert not restart and len(rows) == 0
+    add_online(buffer, np.random.default_rng(1), task=0, n=600)
+    rows, restart = buffer.read_new(cursor)
+    wrapped = len(source_transitions) + 600 > buffer_size
+    assert restart == wrapped
+    expected = buffer.transitions() if wrapped else buffer.transitions(start=len(source_transitions))
+    np.testing.assert_array_equal(rows.states, expected.states)
+    buffer.reset()
+    rows, restart = buffer.read_new(cursor)
+    assert restart and len(rows) == 0
 
 
-def test_relabelled_set_is_the_whole_buffer_cast_on_the_target_task(maze_spaces, source_transitions):
-    """psi keeps s, a, s' and replaces the reward by R~_tau(s) and the task by tau."""
+def test_a_pickled_buffer_is_a_new_buffer_for_cursors(maze_spaces, source_transitions):
+    """save_replay_buffer pickles the buffer: its rows come back, and readers of the old one start over."""
     buffer = make_buffer(maze_spaces)
     buffer.add_transitions(source_transitions)
-    head = KnownRewardHead(lambda states: expected_reward(states, 0))
-    relabelled = buffer.relabelled(0, head)
-    np.testing.assert_array_equal(relabelled.tasks, 0)
-    np.testing.assert_array_equal(relabelled.actions, source_transitions.actions)
-    np.testing.assert_allclose(relabelled.rewards, expected_reward(relabelled.states, 0))
-
-
-def test_sampled_batches_are_relabelled(maze_spaces, source_transitions):
-    """A sampled batch carries R~ of its own observations (HER-style relabelling at sample time)."""
-    buffer = make_buffer(maze_spaces)
-    buffer.add_transitions(source_transitions)
-    head = KnownRewardHead(lambda states: expected_reward(states, 24))
-    batch = buffer.sample_relabelled(256, task=24, head=head)
-    states = batch.observations.numpy().astype(np.float64)
-    np.testing.assert_allclose(batch.rewards.numpy()[:, 0], expected_reward(states, 24))
-
-
-def test_pickling_drops_the_relabelling_cache(maze_spaces, source_transitions):
-    """save_replay_buffer pickles the buffer: the caches (with their heads) must not go along."""
-    buffer = make_buffer(maze_spaces)
-    buffer.add_transitions(source_transitions)
-    buffer.relabelled_rewards(0, ridge_head())
+    cursor = BufferCursor()
+    buffer.read_new(cursor)
     restored = pickle.loads(pickle.dumps(buffer))
-    assert restored._trackers == {}
     np.testing.assert_array_equal(restored.transitions().states, buffer.transitions().states)
+    assert restored.read_new(cursor)[1]
+
+
+def test_packed_rows_restore_the_buffer_exactly(maze_spaces, source_transitions):
+    """What save puts in the zip gives back every stored array, bit for bit (float64 holds them exactly)."""
+    buffer = make_buffer(maze_spaces)
+    buffer.add_transitions(source_transitions)
+    add_online(buffer, np.random.default_rng(2), task=5, n=7)
+    copy = make_buffer(maze_spaces)
+    copy.restore_packed_rows(buffer.packed_rows())
+    assert (copy.pos, copy.full, copy.n_added) == (buffer.pos, buffer.full, buffer.n_added)
+    for name in STORED_FIELDS:
+        np.testing.assert_array_equal(getattr(copy, name)[: copy.pos], getattr(buffer, name)[: buffer.pos])
+    with pytest.raises(ValueError, match="shape"):
+        copy.restore_packed_rows(np.zeros((3, 5)))
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        ({"reward": np.nan}, "reward"),
+        ({"reward": np.inf}, "reward"),
+        ({"state": [np.nan, 1.0]}, "state"),
+        ({"next_state": [1.0, np.inf]}, "next state"),
+        ({"task": 25}, "tasks"),
+        ({"task": -1}, "tasks"),
+        ({"state": [1.0, 2.0, 3.0]}, "shape"),
+        ({"action": 4}, "actions"),
+    ],
+    ids=[
+        "nan-reward",
+        "inf-reward",
+        "nan-state",
+        "inf-next-state",
+        "task-25",
+        "task-minus-1",
+        "3-d",
+        "action-4",
+    ],
+)
+def test_a_bad_online_transition_is_refused_before_anything_is_stored(maze_spaces, change, message):
+    """Validation comes first: the buffer is exactly as it was after the ValueError."""
+    buffer = make_buffer(maze_spaces)
+    add_online(buffer, np.random.default_rng(3), task=1, n=3)
+    before = buffer.packed_rows()
+    values = {"state": [1.0, 1.0], "next_state": [1.5, 1.0], "reward": 0.0, "task": 1, "action": 2, **change}
+    obs = {"state": np.array([values["state"]], dtype=np.float32), "task": np.array([values["task"]])}
+    next_obs = {
+        "state": np.array([values["next_state"]], dtype=np.float32),
+        "task": np.array([values["task"]]),
+    }
+    with pytest.raises(ValueError, match=message):
+        buffer.add(
+            obs,
+            next_obs,
+            np.array([[values["action"]]]),
+            np.array([values["reward"]]),
+            np.array([False]),
+            [{}],
+        )
+    np.testing.assert_array_equal(buffer.packed_rows(), before)
+
+
+def test_recent_states_are_a_tasks_online_trajectory_broken_at_resets(maze_spaces, source_transitions):
+    """The picture's trail: the task's own observed rows only, a NaN row after each reset."""
+    buffer = make_buffer(maze_spaces)
+    buffer.add_transitions(source_transitions)  # rewards discarded: not an online trajectory
+    rng = np.random.default_rng(4)
+    add_online(buffer, rng, task=2, n=3)
+    state = np.array([[2.5, 2.5]], dtype=np.float32)
+    obs = {"state": state, "task": np.array([2])}
+    buffer.add(obs, obs, np.array([[0]]), np.array([0.0]), np.array([True]), [{"TimeLimit.truncated": True}])
+    add_online(buffer, rng, task=6, n=2)
+    trail = buffer.recent_states(2, 10)
+    assert trail.shape == (5, 2) and np.isnan(trail[4]).all() and not np.isnan(trail[:4]).any()
+    np.testing.assert_array_equal(trail[3], [2.5, 2.5])
 
 
 def test_buffer_rejects_transitions_that_do_not_fit(maze_spaces, source_transitions):

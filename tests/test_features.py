@@ -6,15 +6,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from sb3_trlsd.features import (
-    RBFGrid,
-    feature_similarity,
-    gaussian_similarity,
-    grid_centres,
-    rbf_features,
-    squared_distances,
-    state_action_features,
-)
+from sb3_trlsd.features import RBFGrid, gaussian_similarity, grid_centres, squared_distances
 
 MAZE_GRID = RBFGrid(low=(0, 0), high=(5, 5), n_per_dim=5, sigma=0.2)
 
@@ -42,24 +34,17 @@ def test_rbf_grid_equals_eq_11_and_is_one_at_its_centres():
     direct = np.exp(-((states[:, None, :] - MAZE_GRID.centres[None]) ** 2).sum(-1) / (2 * 0.2**2))
     assert MAZE_GRID(states).shape == (200, MAZE_GRID.n_features) == (200, 25)
     np.testing.assert_allclose(MAZE_GRID(states), direct, rtol=1e-12, atol=1e-300)
-    np.testing.assert_allclose(rbf_features(states, MAZE_GRID.centres, 0.2), direct, rtol=1e-10, atol=1e-300)
+    np.testing.assert_allclose(
+        gaussian_similarity(states, MAZE_GRID.centres, 0.2), direct, rtol=1e-10, atol=1e-300
+    )
     np.testing.assert_allclose(np.diag(MAZE_GRID(MAZE_GRID.centres)), 1.0)
-
-
-def test_state_action_features_are_eq_3_blocks():
-    """Phi(s, a) holds Phi(s) in block a and zeros elsewhere."""
-    phi = np.arange(6.0).reshape(2, 3) + 1
-    blocks = state_action_features(phi, np.array([2, 0]), n_actions=4)
-    assert blocks.shape == (2, 12)
-    np.testing.assert_array_equal(blocks[0], [0, 0, 0, 0, 0, 0, 1, 2, 3, 0, 0, 0])
-    np.testing.assert_array_equal(blocks[1], [4, 5, 6] + [0] * 9)
 
 
 def test_similarities_equal_eq_6_and_eq_7_by_hand():
     """S_S on states and S_Phi on features, pair by pair against a hand computation."""
     rng = np.random.default_rng(1)
     a, b = rng.uniform(0, 5, size=(4, 2)), rng.uniform(0, 5, size=(3, 2))
-    s_s, s_phi = gaussian_similarity(a, b, 0.7), feature_similarity(MAZE_GRID(a), MAZE_GRID(b), 0.2)
+    s_s, s_phi = gaussian_similarity(a, b, 0.7), gaussian_similarity(MAZE_GRID(a), MAZE_GRID(b), 0.2)
     assert s_s.shape == s_phi.shape == (4, 3)
     for i in range(4):
         for j in range(3):

@@ -4,11 +4,13 @@ import pickle
 
 import numpy as np
 import pytest
+from gymnasium import spaces
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from sb3_trlsd.features import RBFGrid
 from sb3_trlsd.reward_heads import (
+    GridCells,
     KernelSumTracker,
     KnownRewardHead,
     RewardTracker,
@@ -16,17 +18,19 @@ from sb3_trlsd.reward_heads import (
     TabularRewardHead,
     make_reward_head,
     make_tabular_head,
-    maze_cell_index,
 )
+from sb3_trlsd_envs.dynamics import cell_of
 
 GRID = RBFGrid(low=(0, 0), high=(5, 5), n_per_dim=5, sigma=0.2)
+MAZE_BOX = spaces.Box(0, 5, (2,))
+MAZE_CELLS = GridCells((0, 0), (5, 5), 5)  # the maze's 25 cells, cell id = the task index of its task
 # Rounding of sums of up to a few hundred positive terms, computed in different orders or blocks.
 SUM_RTOL = 1e-10
 
 
 def expected_reward(states, task):
     """The maze's E[R_task(s)] (eq. 12): 1 in the task's cell, 0 elsewhere."""
-    return (maze_cell_index(states) == task).astype(np.float64)
+    return (MAZE_CELLS(states) == task).astype(np.float64)
 
 
 def samples(n, seed=0, task=6):
@@ -52,9 +56,9 @@ def all_heads():
     return [
         pytest.param(lambda: RidgeRewardHead(GRID, kappa=0.1, sigma=0.2), id="ridge-state"),
         pytest.param(lambda: RidgeRewardHead(GRID, kappa=0.1, similarity="features"), id="ridge-features"),
-        pytest.param(lambda: make_tabular_head("cells", kappa=0.2), id="tabular"),
-        pytest.param(lambda: make_tabular_head("corners", kappa=0.2), id="corners"),
-        pytest.param(lambda: KnownRewardHead(maze_cell_index), id="known"),
+        pytest.param(lambda: make_tabular_head(MAZE_BOX, kappa=0.2), id="tabular"),
+        pytest.param(lambda: make_tabular_head(MAZE_BOX, kappa=0.2, corners=True), id="corners"),
+        pytest.param(lambda: KnownRewardHead(expected_reward, task=6), id="known"),
     ]
 
 
@@ -115,16 +119,18 @@ def test_every_heads_tracker_equals_the_head(make_head):
 
 
 @pytest.mark.parametrize("make_head", all_heads())
-def test_frozen_uncertainty_ignores_later_samples(make_head):
+def test_an_uncertainty_snapshot_ignores_later_samples(make_head):
     """The refit trigger compares against the head as it was: later updates must not leak into it."""
     head = make_head()
     states, rewards = samples(200, seed=4)
     head.update(states[:100], rewards[:100])
-    frozen = head.frozen_uncertainty()
-    before = frozen(states[150:])
+    snapshot = head.snapshot()
+    before = head.uncertainty_as_of(snapshot, states[150:])
     np.testing.assert_allclose(before, head.uncertainty(states[150:]), rtol=SUM_RTOL)
     head.update(states[100:], rewards[100:])
-    np.testing.assert_array_equal(frozen(states[150:]), before)
+    np.testing.assert_array_equal(head.uncertainty_as_of(snapshot, states[150:]), before)
+    restored = pickle.loads(pickle.dumps(snapshot))  # plain data, saved with the model
+    np.testing.assert_array_equal(head.uncertainty_as_of(restored, states[150:]), before)
     if not isinstance(head, KnownRewardHead):
         # The new samples sit at these states (corners: where the prior allows a reward).
         assert np.all(head.uncertainty(states[150:]) <= before)
@@ -228,33 +234,61 @@ def test_r_max_caps_the_optimistic_reward():
 def test_tabular_head_is_per_cell_means_and_eq_10():
     """R^ is the mean reward of each cell's samples and CI = kappa sqrt(log|Xi| / N(s)); N = 0 is floored."""
     states, rewards = samples(500, seed=6)
-    head = TabularRewardHead(maze_cell_index, 25, kappa=0.2)
+    head = TabularRewardHead(MAZE_CELLS, 25, kappa=0.2)
     head.update(states[:250], rewards[:250])
     head.update(states[250:], rewards[250:])
-    cells = maze_cell_index(states)
+    cells = MAZE_CELLS(states)
     for cell in range(25):
         rows = cells == cell
         query = states[rows][:1]
         assert head.estimate(query)[0] == pytest.approx(rewards[rows].mean(), rel=1e-12)
         assert head.bonus(query)[0] == pytest.approx(0.2 * np.sqrt(np.log(500) / rows.sum()), rel=1e-12)
-    empty = TabularRewardHead(maze_cell_index, 25, kappa=0.2, w_floor=1e-4)
+    empty = TabularRewardHead(MAZE_CELLS, 25, kappa=0.2, w_floor=1e-4)
     assert empty.estimate(states[:1])[0] == 0
     assert empty.bonus(states[:1])[0] == pytest.approx(0.2 * np.sqrt(np.log(2) / 1e-4))
 
 
-def test_maze_cell_index_is_the_task_index_of_the_cell():
+def test_grid_cells_on_the_maze_are_the_task_index_of_the_cell():
     """Cell 5 (ceil(x) - 1) + (ceil(y) - 1), the borders and outside clipped to the nearest cell."""
     states = np.array([[0.3, 0.2], [0.3, 4.2], [4.5, 0.5], [5.0, 5.0], [1.0, 1.0], [1.01, 2.0], [-1, 7]])
-    np.testing.assert_array_equal(maze_cell_index(states), [0, 4, 20, 24, 0, 6, 4])
+    np.testing.assert_array_equal(MAZE_CELLS(states), [0, 4, 20, 24, 0, 6, 4])
+    assert MAZE_CELLS.corner_cells() == (0, 4, 20, 24) and MAZE_CELLS.n_cells == 25
+
+
+def test_grid_cells_agree_with_the_mazes_own_cells():
+    """The generic grid over the maze's Box is the maze's cell i = ceil(x), j = ceil(y), everywhere."""
+    states = np.random.default_rng(0).uniform(0, 5, size=(2_000, 2))
+    states[:20] = np.round(states[:20])  # on the cell boundaries
+    i, j = cell_of(states).T
+    np.testing.assert_array_equal(MAZE_CELLS(states), 5 * (i - 1) + (j - 1))
+
+
+def test_grid_cells_in_three_dimensions_count_row_major_with_the_first_slowest():
+    """A user discretisation by per-dimension bins: ids, corners and the box edges in 3-D."""
+    cells = GridCells((0, -1, 10), (1, 1, 20), 3)
+    states = np.array([[0.1, -0.9, 10.5], [0.9, 0.9, 19.9], [0.5, 0.0, 15.0], [0.1, -0.9, 19.0]])
+    np.testing.assert_array_equal(cells(states), [0, 26, 13, 2])
+    assert cells.n_cells == 27 and cells.corner_cells() == (0, 2, 6, 8, 18, 20, 24, 26)
+
+
+def test_tabular_head_on_a_user_cell_function():
+    """Any cell function works, and one returning ids out of range is refused with the head unchanged."""
+    head = TabularRewardHead(lambda states: (states[:, 0] > 0).astype(np.int64), 2, kappa=0.1)
+    head.update(np.array([[-1.0, 0.0], [1.0, 0.0], [2.0, 5.0]]), np.array([0.0, 1.0, 3.0]))
+    np.testing.assert_allclose(head.estimate(np.array([[5.0, 1.0], [-3.0, 1.0]])), [2.0, 0.0])
+    bad = TabularRewardHead(lambda states: np.full(len(states), 2), 2)
+    with pytest.raises(ValueError, match="cell_fn"):
+        bad.update(np.ones((1, 2)), np.ones(1))
+    assert bad.n_samples == 0 and not bad.counts.any()
 
 
 def test_corners_preset_has_no_estimate_nor_bonus_outside_the_corners():
     """With the corner prior, R^ = 0 and CI = 0 outside the 4 corner cells, whatever the samples."""
-    head = make_reward_head("corners", kappa=0.5)
+    head = make_reward_head("corners", state_space=MAZE_BOX, kappa=0.5)
     states, rewards = samples(300, seed=7)
     head.update(states, rewards + 5.0)
     grid_of_cells = GRID.centres
-    inside = np.isin(maze_cell_index(grid_of_cells), [0, 4, 20, 24])
+    inside = np.isin(MAZE_CELLS(grid_of_cells), [0, 4, 20, 24])
     assert np.all(head.estimate(grid_of_cells)[~inside] == 0)
     assert np.all(head.bonus(grid_of_cells)[~inside] == 0)
     assert np.all(head.estimate(grid_of_cells)[inside] > 4) and np.all(head.bonus(grid_of_cells)[inside] > 0)
@@ -262,13 +296,30 @@ def test_corners_preset_has_no_estimate_nor_bonus_outside_the_corners():
 
 def test_known_head_has_no_uncertainty():
     """The known head returns the true expected reward and a zero CI; updates only count samples."""
-    head = make_reward_head("known", reward_fn=lambda s: expected_reward(s, 0))
+    head = make_reward_head("known", task=0, reward_fn=expected_reward)
     states, rewards = samples(50)
     head.update(states, rewards)
     assert head.n_samples == 50
     np.testing.assert_array_equal(head.optimistic(states), expected_reward(states, 0))
     assert not head.bonus(states).any() and not head.uncertainty(states).any()
-    assert not head.frozen_uncertainty()(states).any()
+    assert not head.uncertainty_as_of(head.snapshot(), states).any()
+
+
+def test_known_head_checks_its_reward_fn_and_is_saved_without_it():
+    """The reward_fn(states, task) contract: one finite reward per state; the function is not pickled."""
+    head = KnownRewardHead(expected_reward, task=3)
+    restored = pickle.loads(pickle.dumps(head))
+    assert restored.reward_fn is None and restored.task == 3
+    with pytest.raises(ValueError, match="reward_fn"):
+        restored.estimate(np.ones((2, 2)))
+    restored.bind(expected_reward)
+    np.testing.assert_array_equal(restored.estimate(np.ones((2, 2))), expected_reward(np.ones((2, 2)), 3))
+    for bad in (
+        lambda states, task: np.zeros(len(states) + 1),
+        lambda states, task: np.full(len(states), np.nan),
+    ):
+        with pytest.raises(ValueError, match="reward_fn"):
+            KnownRewardHead(bad, task=0).estimate(np.ones((2, 2)))
 
 
 @pytest.mark.parametrize(
@@ -277,7 +328,9 @@ def test_known_head_has_no_uncertainty():
 )
 def test_make_reward_head_builds_each_named_head(name, kind):
     """The factory's names map to the heads of the paper's settings."""
-    head = make_reward_head(name, features=GRID, kappa=0.3, sigma=0.4, similarity="features")
+    head = make_reward_head(
+        name, features=GRID, state_space=MAZE_BOX, kappa=0.3, sigma=0.4, similarity="features"
+    )
     assert isinstance(head, kind) and head.kappa == 0.3
     if name == "corners":
         assert head.allowed.sum() == 4
@@ -291,6 +344,8 @@ def test_heads_and_trackers_pickle_and_have_short_reprs(make_head):
     head.update(states, rewards)
     tracker = head.tracker(states[:20])
     restored_head, restored_tracker = pickle.loads(pickle.dumps((head, tracker)))
+    if isinstance(head, KnownRewardHead):  # saved without its function (often an env's method): bound again
+        restored_head.bind(head.reward_fn)
     np.testing.assert_array_equal(restored_head.optimistic(states), head.optimistic(states))
     np.testing.assert_array_equal(restored_tracker.optimistic(), tracker.optimistic())
     assert restored_head.n_samples == 80
@@ -306,13 +361,18 @@ def test_heads_and_trackers_pickle_and_have_short_reprs(make_head):
         (lambda: RidgeRewardHead(GRID, ridge=0), "ridge"),
         (lambda: RidgeRewardHead(GRID, w_floor=0), "w_floor"),
         (lambda: RidgeRewardHead(GRID, r_max=np.nan), "r_max"),
-        (lambda: TabularRewardHead(maze_cell_index, 0), "n_cells"),
-        (lambda: TabularRewardHead(maze_cell_index, 25, allowed_cells=[25]), "allowed_cells"),
-        (lambda: TabularRewardHead(maze_cell_index, 25, w_floor=-1), "w_floor"),
-        (lambda: make_tabular_head("edges"), "preset"),
+        (lambda: TabularRewardHead(MAZE_CELLS, 0), "n_cells"),
+        (lambda: TabularRewardHead(MAZE_CELLS, 25, allowed_cells=[25]), "allowed_cells"),
+        (lambda: TabularRewardHead(MAZE_CELLS, 25, w_floor=-1), "w_floor"),
+        (lambda: make_tabular_head(MAZE_BOX, cells_per_dim=0), "cells_per_dim"),
+        (lambda: make_tabular_head(spaces.Box(0, np.inf, (2,))), "bound the state Box"),
+        (lambda: make_tabular_head(MAZE_BOX, cell_fn=MAZE_CELLS), "n_cells"),
+        (lambda: make_tabular_head(None), "cell_fn"),
+        (lambda: make_tabular_head(MAZE_BOX, corners=True, cell_fn=np.sign, n_cells=3), "corners"),
         (lambda: make_reward_head("gp"), "reward_head"),
         (lambda: make_reward_head("ridge"), "features"),
-        (lambda: make_reward_head("known"), "reward_fn"),
+        (lambda: RidgeRewardHead(GRID, kappa=np.nan), "kappa"),
+        (lambda: RidgeRewardHead(GRID, sigma=np.nan), "sigma"),
     ],
     ids=[
         "negative-kappa",
@@ -324,10 +384,15 @@ def test_heads_and_trackers_pickle_and_have_short_reprs(make_head):
         "no-cells",
         "allowed-cell-out-of-range",
         "negative-tabular-floor",
-        "unknown-preset",
+        "zero-cells-per-dim",
+        "unbounded-box",
+        "cell-fn-without-count",
+        "no-cells-at-all",
+        "corners-of-a-user-function",
         "unknown-name",
         "ridge-without-features",
-        "known-without-fn",
+        "nan-kappa",
+        "nan-sigma",
     ],
 )
 def test_bad_head_settings_are_refused_by_name(make, argument):

@@ -197,7 +197,7 @@ def test_mlp_policy_learns(source_transitions):
     mlp = TRLSD("MlpPolicy", gym.make(MAZE_ID, task=(1, 1)), fqi_max_iterations=3, seed=0)
     mlp.load_transitions(source_transitions)
     mlp.learn(total_timesteps=60)
-    assert mlp.policy_updates[0] >= 1 and bool(mlp.policy.fitted[0])
+    assert mlp.policy_updates[0] >= 1 and mlp.task_learner(0).fitted
     assert np.isfinite(mlp.policy.q_values(np.ones((4, 2)), 0)).all()
 
 

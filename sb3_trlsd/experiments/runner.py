@@ -27,9 +27,9 @@ from tqdm.auto import tqdm
 
 from sb3_trlsd.data import collect_transitions
 from sb3_trlsd.experiments.run_cache import RunCache
-from sb3_trlsd.pictures import greedy_policy_grid, state_grid
 from sb3_trlsd.trlsd import TRLSD
 from sb3_trlsd_envs import MAZE_ID, expected_reward
+from sb3_trlsd_envs.pictures import greedy_policy_grid, state_grid
 
 __all__ = [
     "Method",

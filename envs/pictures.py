@@ -1,8 +1,8 @@
 """
 What a task's learner looks like on the maze, as in the paper's Figures 1-4: the reward estimate R^ and
 the confidence bonus as green heat maps, the greedy policy as red arrows per cell, the latest trajectory
-in blue. ``TRLSD`` logs these pictures to TensorBoard (``log_picture_every``); the experiments draw
-their snapshots from the same grids.
+in blue. ``SharedDynamicsMaze.task_picture`` draws it for ``TRLSD``'s TensorBoard pictures
+(``log_picture_every``); the experiments draw their snapshots from the same grids.
 """
 
 from __future__ import annotations
@@ -45,31 +45,26 @@ def greedy_policy_grid(q_values: Any, task: int) -> np.ndarray:
     return np.asarray(q).argmax(axis=1).reshape(MAZE_SIZE, MAZE_SIZE)
 
 
-def task_picture(
-    model: Any, task: int, trajectory: np.ndarray | None = None, walls: Any = None, size_px: int = 360
-) -> np.ndarray:
+def task_picture(view: Any, walls: Any, size_px: int = 360) -> np.ndarray:
     """
     Two panels side by side: R^ with the greedy policy and the trajectory, and the bonus R~ - R^ (CI).
     The task's target cell is outlined in green.
 
-    :param model: a ``TRLSD`` model on the maze
-    :param task: the task drawn
-    :param trajectory: (t, 2) recent states of the task, drawn in blue
-    :param walls: the maze's wall layout (None: the env's)
+    :param view: what to draw of a task's learner: ``task``, ``estimate(states)``, ``bonus(states)``,
+        ``q_values(states)`` and ``trajectory`` (e.g. ``sb3_trlsd.callbacks.TaskView``)
+    :param walls: the maze's wall layout
     :param size_px: height of the picture; the width is twice that
     :return: (size_px, 2 * size_px, 3) uint8 RGB image
     """
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    if walls is None:
-        walls = model.get_env().get_attr("walls", indices=0)[0]
-    head = model.reward_head_of(task)
     grid = state_grid()
-    estimate = head.estimate(grid).reshape(PICTURE_GRID, PICTURE_GRID)
-    bonus = head.bonus(grid).reshape(PICTURE_GRID, PICTURE_GRID)
-    policy = greedy_policy_grid(model.policy.q_values, task)
-    i, j = task_cell(task)
+    estimate = np.asarray(view.estimate(grid)).reshape(PICTURE_GRID, PICTURE_GRID)
+    bonus = np.asarray(view.bonus(grid)).reshape(PICTURE_GRID, PICTURE_GRID)
+    policy = greedy_policy_grid(lambda states, _task: view.q_values(states), view.task)
+    i, j = task_cell(view.task)
+    trajectory = np.asarray(view.trajectory, dtype=np.float64).reshape(-1, 2)
     figure = Figure(figsize=(2 * size_px / 100, size_px / 100), dpi=100)
     canvas = FigureCanvasAgg(figure)
     left, right = figure.subplots(1, 2)

@@ -1,103 +1,24 @@
-"""Fitted-Q Iteration over arrays (Ernst et al. 2005; paper, eq. 1-4): transitions in, Q-function out.
-
-Both solvers bootstrap through truncations: only ``terminated`` (an absorbing next state) stops the
-bootstrap, as a trajectory reset is not the end of the task.
-"""
+"""Linear Fitted-Q Iteration (Ernst et al. 2005; paper, eq. 3-4) on a set of transitions that only grows."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
 import numpy.typing as npt
-import torch as th
 from scipy.linalg import cho_factor, cho_solve
 
 from sb3_trlsd.arrays import GrowableColumns
+from sb3_trlsd.fqi.targets import (
+    DEFAULT_LINEAR_ITERATIONS,
+    DEFAULT_RIDGE,
+    DEFAULT_TOL,
+    FQIResult,
+    bellman_targets,
+    return_bounds,
+)
 
-__all__ = [
-    "LinearFQIResult",
-    "LinearFQISolver",
-    "MLPFQIResult",
-    "bellman_targets",
-    "fit_linear_fqi",
-    "fit_mlp_fqi",
-    "linear_q_values",
-    "make_q_network",
-    "return_bounds",
-]
-
-DEFAULT_MAX_ITERATIONS = 500
-DEFAULT_TOL = 1e-6
-DEFAULT_RIDGE = 1e-3
-
-
-@dataclass(frozen=True)
-class LinearFQIResult:
-    """theta (n_actions, k) of Q(s, a) = theta[a] . phi(s), the iterations run, the final Bellman residual."""
-
-    theta: np.ndarray
-    iterations: int
-    bellman_residual: float
-
-
-@dataclass(frozen=True)
-class MLPFQIResult:
-    """Fitted iterations run and the final Bellman residual (RMS) of the network trained in place."""
-
-    iterations: int
-    bellman_residual: float
-
-
-def linear_q_values(phi: np.ndarray, theta: np.ndarray) -> np.ndarray:
-    """
-    Q(s, a) = theta_a . Phi(s) (eq. 3) for every action.
-
-    :param phi: Phi(s), (n, k)
-    :param theta: (n_actions, k)
-    :return: (n, n_actions)
-    """
-    return phi @ theta.T  # eq. 3
-
-
-def return_bounds(rewards: np.ndarray, gamma: float) -> tuple[float, float]:
-    """
-    The discounted returns the rewards allow, terminated or not: [min(r, 0), max(r, 0)] / (1 - gamma).
-
-    :param rewards: r, (n,)
-    :param gamma: discount factor in [0, 1)
-    :return: (low, high)
-    """
-    if not len(rewards):
-        return 0.0, 0.0
-    return min(float(rewards.min()), 0.0) / (1 - gamma), max(float(rewards.max()), 0.0) / (1 - gamma)
-
-
-def bellman_targets(
-    rewards: np.ndarray,
-    next_q: np.ndarray,
-    terminated: np.ndarray,
-    gamma: float,
-    bounds: tuple[float, float] = (-np.inf, np.inf),
-) -> np.ndarray:
-    """
-    y = r + gamma * max_a' Q(s', a'), without the bootstrap where s' is absorbing (eq. 1, 4).
-
-    The bootstrap is clipped to ``bounds``: with function approximation and few samples, off-policy
-    Fitted-Q Iteration is not a contraction and can diverge; no true Q-value lies outside
-    ``return_bounds(rewards, gamma)``, so clipping to them leaves a well-behaved fit unchanged.
-
-    :param rewards: r, (n,)
-    :param next_q: Q(s', .), (n, n_actions); fastest as the transpose of a C-contiguous (n_actions, n) array
-    :param terminated: s' is absorbing, (n,) bool
-    :param gamma: discount factor
-    :param bounds: (low, high) clip of the bootstrap
-    :return: y, (n,)
-    """
-    # Reduced along the first axis of next_q.T, contiguous when next_q is a transposed (n_actions, n).
-    bootstrap = np.clip(np.max(next_q.T, axis=0), *bounds)
-    return rewards + gamma * np.where(terminated, 0.0, bootstrap)  # eq. 1
+__all__ = ["LinearFQISolver", "fit_linear_fqi"]
 
 
 class _ActionBlock(NamedTuple):
@@ -240,9 +161,9 @@ class LinearFQISolver:
         *,
         gamma: float,
         theta0: np.ndarray | None = None,
-        max_iterations: int = DEFAULT_MAX_ITERATIONS,
+        max_iterations: int = DEFAULT_LINEAR_ITERATIONS,
         tol: float = DEFAULT_TOL,
-    ) -> LinearFQIResult:
+    ) -> FQIResult:
         """
         Fitted-Q Iteration on the stored transitions with the given rewards (see ``fit_linear_fqi``).
 
@@ -270,7 +191,7 @@ class LinearFQISolver:
         if theta.shape != shape:
             raise ValueError(f"theta0 must have shape {shape}, got {theta.shape}")
         if not self.n_transitions:
-            return LinearFQIResult(theta=theta, iterations=0, bellman_residual=0.0)
+            return FQIResult(theta=theta, iterations=0, bellman_residual=0.0)
         tol = max(tol, 64 * float(np.finfo(self.dtype).eps))
 
         blocks = self._blocks()
@@ -301,7 +222,7 @@ class LinearFQISolver:
             for block, y in zip(blocks, targets, strict=True)
         )
         residual = float(np.sqrt(squared_error / self.n_transitions))
-        return LinearFQIResult(theta=theta, iterations=iterations, bellman_residual=residual)
+        return FQIResult(theta=theta, iterations=iterations, bellman_residual=residual)
 
 
 def fit_linear_fqi(
@@ -314,10 +235,10 @@ def fit_linear_fqi(
     n_actions: int,
     gamma: float,
     theta0: np.ndarray | None = None,
-    max_iterations: int = DEFAULT_MAX_ITERATIONS,
+    max_iterations: int = DEFAULT_LINEAR_ITERATIONS,
     tol: float = DEFAULT_TOL,
     ridge: float = DEFAULT_RIDGE,
-) -> LinearFQIResult:
+) -> FQIResult:
     """
     Linear Fitted-Q Iteration in one call: theta_a <- (X_a^T X_a + ridge I)^-1 X_a^T y_a for each action a
     (eq. 4 in its per-action block form, since Phi(s, a) of eq. 3 is block-diagonal in the actions), with
@@ -339,7 +260,7 @@ def fit_linear_fqi(
     :param theta0: warm start, (n_actions, k); zeros if None. Actions without samples keep it
     :param max_iterations: cap on the iterations (default 500: a cold fit with gamma = 0.9 needs ~130 for
         a contraction of factor gamma, far fewer in practice and when warm-started)
-    :param tol: relative stopping tolerance (default 1e-6)
+    :param tol: relative stopping tolerance (default ``DEFAULT_TOL``)
     :param ridge: Tikhonov regularisation of each projection (default 1e-3, see ``LinearFQISolver``)
     :return: theta (n_actions, k), iterations run and the RMS Bellman residual sqrt(mean (y - X theta)^2) of
         the final theta
@@ -347,97 +268,3 @@ def fit_linear_fqi(
     solver = LinearFQISolver(np.shape(phi)[-1], n_actions, ridge=ridge)
     solver.extend(phi, actions, next_phi, terminated)
     return solver.fit(rewards, gamma=gamma, theta0=theta0, max_iterations=max_iterations, tol=tol)
-
-
-def make_q_network(input_dim: int, n_actions: int, hidden: tuple[int, ...] = (64, 64)) -> th.nn.Sequential:
-    """
-    A small MLP Q(s, .) with one output per action (ReLU hidden layers).
-
-    :param input_dim: d, the width of the inputs
-    :param n_actions: number of actions (outputs)
-    :param hidden: hidden layer sizes
-    :return: the network, (n, d) -> (n, n_actions)
-    """
-    layers: list[th.nn.Module] = []
-    width = input_dim
-    for size in hidden:
-        layers += [th.nn.Linear(width, size), th.nn.ReLU()]
-        width = size
-    layers.append(th.nn.Linear(width, n_actions))
-    return th.nn.Sequential(*layers)
-
-
-def fit_mlp_fqi(
-    inputs: np.ndarray,
-    actions: np.ndarray,
-    rewards: np.ndarray,
-    next_inputs: np.ndarray,
-    terminated: np.ndarray,
-    *,
-    network: th.nn.Module,
-    gamma: float,
-    iterations: int = 20,
-    epochs_per_iteration: int = 2,
-    batch_size: int = 512,
-    learning_rate: float = 1e-3,
-    generator: th.Generator | None = None,
-) -> MLPFQIResult:
-    """
-    Fitted-Q Iteration with a network, trained in place: each iteration computes all the targets
-    y = r + gamma max_a' Q_prev(s', a') (eq. 1, bootstrap clipped as in ``bellman_targets``) with the
-    previous iterate, frozen under ``torch.no_grad``, then regresses Q(s, a) on y for a few epochs of
-    shuffled minibatches (MSE, Adam). Deterministic given the network's initial weights and ``generator``.
-
-    :param inputs: network inputs of s, (n, d)
-    :param actions: a, (n,)
-    :param rewards: r, (n,)
-    :param next_inputs: network inputs of s', (n, d)
-    :param terminated: s' is absorbing, (n,) bool; truncations (terminated False) bootstrap
-    :param network: Q network, (n, d) -> (n, n_actions), updated in place (e.g. ``make_q_network``)
-    :param gamma: discount factor in [0, 1)
-    :param iterations: fitted iterations (>= 0)
-    :param epochs_per_iteration: regression epochs per iteration (>= 1)
-    :param batch_size: minibatch size (>= 1)
-    :param learning_rate: Adam learning rate (> 0)
-    :param generator: torch generator of the minibatch shuffling (global RNG if None)
-    :return: iterations run and the final RMS Bellman residual
-    """
-    if not 0 <= gamma < 1:
-        raise ValueError(f"gamma must be in [0, 1), got {gamma}")
-    if not (iterations >= 0 and epochs_per_iteration >= 1 and batch_size >= 1 and learning_rate > 0):
-        raise ValueError(
-            "iterations must be >= 0, epochs_per_iteration and batch_size >= 1, learning_rate > 0; got "
-            f"{iterations}, {epochs_per_iteration}, {batch_size}, {learning_rate}"
-        )
-    if not len(inputs):
-        return MLPFQIResult(iterations=0, bellman_residual=0.0)
-    device = next(network.parameters()).device
-    x = th.as_tensor(inputs, dtype=th.float32, device=device)
-    x_next = th.as_tensor(next_inputs, dtype=th.float32, device=device)
-    a = th.as_tensor(np.asarray(actions, dtype=np.int64), device=device)
-    r = th.as_tensor(rewards, dtype=th.float32, device=device)
-    continues = th.as_tensor(~np.asarray(terminated, dtype=bool), dtype=th.float32, device=device)
-    low, high = return_bounds(np.asarray(rewards, dtype=np.float64), gamma)
-    optimizer = th.optim.Adam(network.parameters(), lr=learning_rate)
-
-    def targets() -> th.Tensor:
-        with th.no_grad():
-            # y (n,), eq. 1, bootstrap clipped as in bellman_targets
-            return r + gamma * continues * network(x_next).max(dim=1).values.clamp(low, high)
-
-    for _ in range(iterations):
-        # All targets are computed before the iteration's regression: they are those of a frozen copy of
-        # the previous iterate, without copying the network.
-        iteration_targets = targets()
-        for _ in range(epochs_per_iteration):
-            order = th.randperm(len(x), generator=generator, device=device)
-            for start in range(0, len(x), batch_size):
-                batch = order[start : start + batch_size]
-                predicted = network(x[batch]).gather(1, a[batch, None])[:, 0]  # Q(s, a), (b,)
-                loss = th.nn.functional.mse_loss(predicted, iteration_targets[batch])
-                optimizer.zero_grad()
-                loss.backward()
-                optimizer.step()
-    with th.no_grad():
-        residual = (targets() - network(x).gather(1, a[:, None])[:, 0]).pow(2).mean().sqrt().item()
-    return MLPFQIResult(iterations=iterations, bellman_residual=residual)

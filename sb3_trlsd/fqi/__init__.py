@@ -1,0 +1,34 @@
+"""Fitted-Q Iteration over arrays (Ernst et al. 2005; paper, eq. 1-4): transitions in, Q-function out.
+
+- ``targets.py``: the defaults, ``FQIResult`` and the Bellman targets every solver uses;
+- ``linear.py``: ``LinearFQISolver``, linear FQI that keeps its per-action factorisations across refits;
+- ``mlp.py``: FQI with a small network, trained in place.
+"""
+
+from sb3_trlsd.fqi.linear import LinearFQISolver, fit_linear_fqi
+from sb3_trlsd.fqi.mlp import fit_mlp_fqi, make_q_network
+from sb3_trlsd.fqi.targets import (
+    DEFAULT_LINEAR_ITERATIONS,
+    DEFAULT_MLP_ITERATIONS,
+    DEFAULT_RIDGE,
+    DEFAULT_TOL,
+    FQIResult,
+    bellman_targets,
+    linear_q_values,
+    return_bounds,
+)
+
+__all__ = [
+    "DEFAULT_LINEAR_ITERATIONS",
+    "DEFAULT_MLP_ITERATIONS",
+    "DEFAULT_RIDGE",
+    "DEFAULT_TOL",
+    "FQIResult",
+    "LinearFQISolver",
+    "bellman_targets",
+    "fit_linear_fqi",
+    "fit_mlp_fqi",
+    "linear_q_values",
+    "make_q_network",
+    "return_bounds",
+]

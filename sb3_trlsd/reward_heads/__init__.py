@@ -1,0 +1,138 @@
+"""
+Reward heads: the optimistic reward proxy R~_tau = R^_tau + CI_tau of one task (paper, section 3, eq. 5).
+
+- ``RidgeRewardHead`` (``ridge.py``): the continuous setting. R^ is a ridge regression on the features
+  Phi(s) with Tikhonov regularisation lambda = 1, kept as running sufficient statistics; CI by eq. 9 with
+  the neighbouring weight W_tau(s) of eq. 8 under the similarity of eq. 6 (states) or eq. 7 (features).
+- ``TabularRewardHead`` (``tabular.py``): the discrete setting. R^ is a per-cell mean, CI by eq. 10, on
+  any cell function or a ``GridCells`` grid over the state Box; an optional set of allowed cells encodes
+  the prior that rewards are zero elsewhere (``"corners"``: the grid's corner cells).
+- ``KnownRewardHead`` (``known.py``): the reward is known, CI = 0.
+
+The edge cases (W -> 0, |Xi| <= 1) are decided in ``base.py``'s docstring.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+from gymnasium import spaces
+
+from sb3_trlsd.reward_heads.base import DEFAULT_W_FLOOR, RewardHead, RewardTracker
+from sb3_trlsd.reward_heads.known import KnownRewardHead, RewardFn
+from sb3_trlsd.reward_heads.ridge import SIMILARITIES, KernelSumTracker, RidgeRewardHead
+from sb3_trlsd.reward_heads.tabular import CellFn, GridCells, TabularRewardHead
+
+__all__ = [
+    "DEFAULT_W_FLOOR",
+    "REWARD_HEAD_NAMES",
+    "SIMILARITIES",
+    "CellFn",
+    "GridCells",
+    "KernelSumTracker",
+    "KnownRewardHead",
+    "RewardFn",
+    "RewardHead",
+    "RewardTracker",
+    "RidgeRewardHead",
+    "TabularRewardHead",
+    "make_reward_head",
+    "make_tabular_head",
+]
+
+REWARD_HEAD_NAMES = ("ridge", "tabular", "corners", "known")
+DEFAULT_CELLS_PER_DIM = 5  # the paper's 5 x 5 cells of the maze
+
+
+def make_tabular_head(
+    state_space: spaces.Box | None = None,
+    *,
+    kappa: float = 0.1,
+    corners: bool = False,
+    cell_fn: CellFn | None = None,
+    n_cells: int | None = None,
+    cells_per_dim: int = DEFAULT_CELLS_PER_DIM,
+    **kwargs: Any,
+) -> TabularRewardHead:
+    """
+    A tabular head on a user discretisation (``cell_fn`` and ``n_cells``) or on ``GridCells`` over the state
+    Box (``cells_per_dim`` cells per dimension: the maze's 25 cells by default).
+
+    :param state_space: the state Box (finite bounds), needed without ``cell_fn``
+    :param kappa: optimism (eq. 10)
+    :param corners: rewards only possible in the grid's 2^d corner cells (the corners experiment's prior)
+    :param cell_fn: states (n, d) -> cell ids (n,) in 0..n_cells-1
+    :param n_cells: the number of cells of ``cell_fn``
+    :param cells_per_dim: cells per dimension of the grid, without ``cell_fn``
+    :param kwargs: further arguments of ``TabularRewardHead`` (``allowed_cells``, ``w_floor``, ``r_max``)
+    :return: the head
+    """
+    if cell_fn is None:
+        if n_cells is not None:
+            raise ValueError(
+                "n_cells goes with cell_fn; without cell_fn the grid has cells_per_dim ** d cells"
+            )
+        if not isinstance(state_space, spaces.Box):
+            raise ValueError(
+                "the tabular head needs cell_fn and n_cells, or a state Box to lay a grid of cells on"
+            )
+        cell_fn = GridCells(
+            tuple(state_space.low.astype(float)), tuple(state_space.high.astype(float)), cells_per_dim
+        )
+        n_cells = cell_fn.n_cells
+    elif n_cells is None:
+        raise ValueError("cell_fn needs n_cells, the number of cells it maps states to")
+    if corners:
+        if not isinstance(cell_fn, GridCells):
+            raise ValueError(
+                "the 'corners' prior is the corner cells of a GridCells grid: give allowed_cells instead"
+            )
+        if "allowed_cells" in kwargs:
+            raise ValueError("'corners' sets allowed_cells to the grid's corners: give one or the other")
+        kwargs["allowed_cells"] = cell_fn.corner_cells()
+    return TabularRewardHead(cell_fn, n_cells, kappa=kappa, **kwargs)
+
+
+def make_reward_head(
+    name: str,
+    *,
+    task: int = 0,
+    features: Callable[[np.ndarray], np.ndarray] | None = None,
+    state_space: spaces.Box | None = None,
+    kappa: float = 0.1,
+    sigma: float = 0.2,
+    similarity: str = "state",
+    reward_fn: RewardFn | None = None,
+    **kwargs: Any,
+) -> RewardHead:
+    """
+    A reward head by name: ``"ridge"`` (continuous setting), ``"tabular"`` (per-cell means, see
+    ``make_tabular_head``), ``"corners"`` (tabular, rewards only possible in the corner cells) or
+    ``"known"`` (``reward_fn``). Arguments a head does not use (``sigma`` and ``similarity`` of the tabular
+    heads, ``kappa`` of the known one) are ignored.
+
+    :param name: the head's name
+    :param task: the task the head is for (the known head passes it to ``reward_fn``)
+    :param features: Phi for the ridge head
+    :param state_space: the state Box, for the tabular heads' grid
+    :param kappa: optimism
+    :param sigma: similarity width of the ridge head
+    :param similarity: similarity of the ridge head, ``"state"`` or ``"features"``
+    :param reward_fn: the known expected reward, ``reward_fn(states, task) -> (n,)``
+    :param kwargs: further arguments of the head (``ridge``, ``w_floor``, ``r_max``; ``cell_fn``,
+        ``n_cells``, ``cells_per_dim``, ``allowed_cells`` for the tabular heads)
+    :return: the head
+    """
+    if name == "ridge":
+        if features is None:
+            raise ValueError("the 'ridge' reward_head needs features (Phi, e.g. an RBFGrid)")
+        return RidgeRewardHead(features, kappa=kappa, sigma=sigma, similarity=similarity, **kwargs)
+    if name in ("tabular", "corners"):
+        return make_tabular_head(state_space, kappa=kappa, corners=name == "corners", **kwargs)
+    if name == "known":
+        if kwargs:
+            raise ValueError(f"the 'known' reward_head takes no reward_head_kwargs, got {sorted(kwargs)}")
+        return KnownRewardHead(reward_fn, task)
+    raise ValueError(f"reward_head must be one of {list(REWARD_HEAD_NAMES)}, got {name!r}")

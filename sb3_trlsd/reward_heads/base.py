@@ -1,0 +1,261 @@
+"""The optimistic reward proxy R~_tau = R^_tau + CI_tau of one task (paper, section 3, eq. 5): the base class.
+
+Each head learns from the samples Xi_tau of its task (their start states and rewards, float64, states (n, d),
+rewards (n,)) and answers, for any states: the estimate R^ (``estimate``), the kappa-free uncertainty
+(``uncertainty``), the confidence interval CI = kappa * uncertainty (``bonus``) and R~ = R^ + CI capped at
+``r_max`` if given (``optimistic``). ``tracker`` keeps R~ up to date on a fixed, growable set of states
+(a replay buffer's start states), which is what relabelling the buffer asks for at every refit.
+``snapshot`` records the uncertainty as of now as plain data and ``uncertainty_as_of`` evaluates it later:
+the refit trigger of section 3 compares the two.
+
+Edge cases, decided here so that R^, CI and R~ are never infinite or NaN for finite query states:
+
+- W_tau(s) -> 0 far from every sample (exactly 0 once exp underflows, beyond ~39 sigma), and N_tau(s) = 0 in
+  an unvisited cell: eq. 9 and 10 give an infinite CI. W and N are floored at ``w_floor`` (default 1e-6),
+  so the bonus is at most kappa * sqrt(log|Xi_tau| / w_floor). The floor only bites where the state is
+  practically unknown: with the paper's sigma = 0.2, W < 1e-6 means no sample within ~1.05 (5.3 sigma) of
+  s, and N counts whole samples, so any N >= 1 is above it. There the bonus (~263 for kappa = 0.1 and
+  1,000 samples) dwarfs any reward the maze gives, which is the "infinitely optimistic where never
+  visited" behaviour of UCB the paper builds on, kept finite so that FQI stays numerically sane. Where an
+  upper bound of the reward is known, ``r_max`` caps R~ instead.
+- |Xi_tau| <= 1: log 1 = 0 would remove all optimism after the first sample and log 0 = -inf, so the log
+  factor is log(max(|Xi_tau|, 2)). With no sample, R^ = 0 and the bonus is the floored maximum everywhere.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from typing import Any
+
+import numpy as np
+
+from sb3_trlsd.arrays import GrowableArray
+
+__all__ = [
+    "DEFAULT_W_FLOOR",
+    "RewardHead",
+    "RewardTracker",
+    "check_positive",
+    "confidence_width",
+    "log_sample_count",
+]
+
+DEFAULT_W_FLOOR = 1e-6
+
+
+def log_sample_count(n_samples: int) -> float:
+    """
+    log|Xi_tau| of eq. 9 and 10, with |Xi_tau| taken as at least 2 (see the module docstring).
+
+    :param n_samples: |Xi_tau|
+    :return: log(max(|Xi_tau|, 2))
+    """
+    return float(np.log(max(n_samples, 2)))
+
+
+def confidence_width(log_count: float, weights: np.ndarray, w_floor: float) -> np.ndarray:
+    """
+    sqrt(log|Xi_tau| / W(s)): eq. 9 (W a neighbouring weight) or eq. 10 (W a count), without kappa.
+
+    :param log_count: log|Xi_tau| (see ``log_sample_count``)
+    :param weights: W_tau(s) or N_tau(s), (n,)
+    :param w_floor: floor on the weights (> 0)
+    :return: (n,)
+    """
+    return np.sqrt(log_count / np.maximum(weights, w_floor))
+
+
+def check_positive(name: str, value: float, meaning: str) -> float:
+    """``value`` as a float if it is > 0 (NaN is not); otherwise a ValueError naming ``name``."""
+    if not value > 0:
+        raise ValueError(f"{name} must be > 0 ({meaning}), got {value}")
+    return float(value)
+
+
+class RewardTracker:
+    """
+    R~ of a head on a fixed but growable set of query states (e.g. every start state of a replay buffer).
+    This generic one evaluates the head on the stored states at each call; ``RidgeRewardHead`` returns a
+    ``KernelSumTracker``, which keeps its kernel sums up to date.
+
+    :param head: the reward head
+    :param states: the initial query states (m, d), possibly none
+    """
+
+    def __init__(self, head: RewardHead, states: np.ndarray):
+        self.head = head
+        self._states = GrowableArray(np.asarray(states).shape[1])
+        self.extend(states)
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({self.head!r}, n_states={self.n_states})"
+
+    @property
+    def n_states(self) -> int:
+        """The number of query states m."""
+        return len(self._states)
+
+    @property
+    def states(self) -> np.ndarray:
+        """The query states (m, d), a view."""
+        return self._states.view()
+
+    def extend(self, states: np.ndarray) -> None:
+        """
+        Append query states.
+
+        :param states: (n, d)
+        """
+        self._states.append(states)
+
+    def estimate(self) -> np.ndarray:
+        """:return: R^_tau at the query states, (m,)"""
+        return self.head.estimate(self.states)
+
+    def bonus(self) -> np.ndarray:
+        """:return: CI_tau at the query states, (m,)"""
+        return self.head.bonus(self.states)
+
+    def optimistic(self) -> np.ndarray:
+        """:return: R~_tau at the query states (eq. 5, capped at the head's ``r_max``), (m,)"""
+        return self.head.clip_optimistic(self.estimate() + self.bonus())
+
+
+class RewardHead(ABC):
+    """
+    Base of the reward heads: sample bookkeeping and validation, CI = kappa * uncertainty, R~ = R^ + CI.
+
+    :param kappa: optimism of the confidence interval (>= 0; 0 is the non-optimistic method)
+    :param r_max: optional upper bound on the reward (expert knowledge): R~ is capped at it
+    """
+
+    def __init__(self, kappa: float = 0.1, r_max: float | None = None):
+        if not kappa >= 0 or not np.isfinite(kappa):
+            raise ValueError(
+                f"kappa must be a finite number >= 0 (0 is the non-optimistic method), got {kappa}"
+            )
+        if r_max is not None and not np.isfinite(r_max):
+            raise ValueError(f"r_max must be a finite number or None (no cap), got {r_max}")
+        self.kappa = float(kappa)
+        self.r_max = None if r_max is None else float(r_max)
+        self.n_samples = 0
+        self.state_dim: int | None = None  # fixed by the first update
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({', '.join(self._repr_items())}, n_samples={self.n_samples})"
+
+    def _repr_items(self) -> list[str]:
+        return [f"kappa={self.kappa:g}"]
+
+    def check_samples(self, states: np.ndarray, rewards: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """
+        Samples as float64 arrays if ``update`` would take them; otherwise a ValueError saying what is wrong.
+
+        :param states: (n, d)
+        :param rewards: (n,)
+        :return: states and rewards, float64
+        """
+        states = np.asarray(states, dtype=np.float64)
+        rewards = np.asarray(rewards, dtype=np.float64)
+        if states.ndim != 2 or (self.state_dim is not None and states.shape[1] != self.state_dim):
+            expected = "(n, d)" if self.state_dim is None else f"(n, {self.state_dim})"
+            raise ValueError(f"states must have shape {expected}, got {states.shape}")
+        if rewards.shape != (len(states),):
+            raise ValueError(f"rewards must have shape ({len(states)},), one per state, got {rewards.shape}")
+        if not np.all(np.isfinite(rewards)):
+            raise ValueError("rewards must be finite (no NaN or inf)")
+        if not np.all(np.isfinite(states)):
+            raise ValueError("states must be finite (no NaN or inf)")
+        return states, rewards
+
+    def update(self, states: np.ndarray, rewards: np.ndarray) -> None:
+        """
+        Add samples of the task, incrementally: start states of transitions and the rewards observed there.
+        Bad samples raise a ValueError and leave the head unchanged.
+
+        :param states: (n, d)
+        :param rewards: (n,), finite
+        """
+        states, rewards = self.check_samples(states, rewards)
+        self.state_dim = states.shape[1]
+        if len(states):
+            self._update(states, rewards)
+            self.n_samples += len(rewards)
+
+    def bonus(self, states: np.ndarray) -> np.ndarray:
+        """
+        CI_tau(s) = kappa * uncertainty(s) (eq. 9, 10).
+
+        :param states: (n, d)
+        :return: (n,)
+        """
+        if self.kappa == 0:  # the non-optimistic method: no kernel sums needed
+            return np.zeros(len(states))
+        return self.kappa * self.uncertainty(states)
+
+    def optimistic(self, states: np.ndarray) -> np.ndarray:
+        """
+        R~_tau(s) = R^_tau(s) + CI_tau(s) (eq. 5), capped at ``r_max`` if given.
+
+        :param states: (n, d)
+        :return: (n,)
+        """
+        return self.clip_optimistic(self.estimate(states) + self.bonus(states))
+
+    def clip_optimistic(self, rewards: np.ndarray) -> np.ndarray:
+        """
+        Cap optimistic rewards at ``r_max`` (no-op without it).
+
+        :param rewards: (n,)
+        :return: (n,)
+        """
+        return rewards if self.r_max is None else np.minimum(rewards, self.r_max)
+
+    def tracker(self, states: np.ndarray) -> RewardTracker:
+        """
+        R~ on a growable set of query states, kept up to date as the head learns.
+
+        :param states: the initial query states (m, d)
+        :return: the tracker
+        """
+        return RewardTracker(self, states)
+
+    def uncertainty(self, states: np.ndarray) -> np.ndarray:
+        """
+        The kappa-free confidence width sqrt(log|Xi_tau| / W_tau(s)) (eq. 9, 10 without kappa).
+
+        :param states: (n, d)
+        :return: (n,)
+        """
+        return self.uncertainty_as_of(self.snapshot(), states)
+
+    @abstractmethod
+    def _update(self, states: np.ndarray, rewards: np.ndarray) -> None:
+        """Fold in validated samples: states (n, d), rewards (n,), n >= 1."""
+
+    @abstractmethod
+    def estimate(self, states: np.ndarray) -> np.ndarray:
+        """
+        R^_tau(s).
+
+        :param states: (n, d)
+        :return: (n,)
+        """
+
+    @abstractmethod
+    def snapshot(self) -> Any:
+        """
+        What the uncertainty depends on, as of now, as plain data (an int or arrays, never a closure), so
+        that ``uncertainty_as_of`` gives the uncertainty of this moment after later updates. Cheap: it does
+        not copy the samples.
+        """
+
+    @abstractmethod
+    def uncertainty_as_of(self, snapshot: Any, states: np.ndarray) -> np.ndarray:
+        """
+        The uncertainty the head had when ``snapshot`` was taken.
+
+        :param snapshot: a value of ``snapshot()``
+        :param states: (n, d)
+        :return: (n,)
+        """

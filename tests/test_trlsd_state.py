@@ -1,0 +1,269 @@
+"""TRLSD's learning state: one owner per task, nothing lost on save/load, validation before storing."""
+
+import base64
+import json
+import os
+import subprocess
+import sys
+import warnings
+import zipfile
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from tensorboard.backend.event_processing.event_file_loader import EventFileLoader
+
+from sb3_trlsd import TRLSD, TaskLearner
+from tests.conftest import MAZE_ID
+
+
+def continued_model(tmp_path, save_and_load: bool, first=120, then=180):
+    """A model learning ``first`` steps, saved and loaded (or not), then learning ``then`` steps more."""
+    model = TRLSD("LinearPolicy", gym.make(MAZE_ID, task=(1, 5)), source_transitions=2_000, seed=4)
+    model.learn(total_timesteps=first)
+    if save_and_load:
+        env = model.get_env()  # the same env, its RNG and trajectory going on: an uninterrupted run's
+        model.save(tmp_path / "model")
+        model = TRLSD.load(tmp_path / "model", env=env, force_reset=False)
+    model.learn(total_timesteps=then, reset_num_timesteps=False)
+    return model
+
+
+def test_learning_after_save_and_load_takes_the_actions_of_an_uninterrupted_run(tmp_path):
+    """
+    Everything a model needs to go on learning is in its zip: the source and online rows of the shared
+    buffer, the reward heads with their samples, the trigger state and refit counts. With the env's RNG
+    going on (the same env object), the loaded model takes exactly the actions, refits and rewards of a
+    run that never stopped; an empty buffer after load would refit on 120 rows and act otherwise.
+    """
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no "empty buffer" warning
+        resumed = continued_model(tmp_path, save_and_load=True)
+    uninterrupted = continued_model(tmp_path, save_and_load=False)
+    ours, theirs = resumed.replay_buffer.transitions(), uninterrupted.replay_buffer.transitions()
+    assert len(ours) == 2_000 + 300
+    np.testing.assert_array_equal(ours.actions, theirs.actions)
+    np.testing.assert_array_equal(ours.rewards, theirs.rewards)
+    assert resumed.policy_updates == uninterrupted.policy_updates
+    np.testing.assert_allclose(resumed.policy.theta.numpy(), uninterrupted.policy.theta.numpy(), rtol=1e-9)
+
+
+def test_a_loaded_model_has_int_task_keys_and_its_heads_samples(tmp_path):
+    """After load, policy_updates[4] works (JSON would have made the keys strings) and R~ is the same."""
+    model = TRLSD("LinearPolicy", gym.make(MAZE_ID, task=(1, 5)), source_transitions=500, seed=0)
+    model.learn(total_timesteps=80)
+    model.save(tmp_path / "model")
+    loaded = TRLSD.load(tmp_path / "model")
+    assert list(loaded.policy_updates) == [4] and loaded.policy_updates[4] == model.policy_updates[4]
+    assert isinstance(loaded.task_learners[4], TaskLearner)
+    states = np.random.default_rng(0).uniform(0, 5, size=(300, 2))
+    np.testing.assert_array_equal(
+        loaded.reward_head_of(4).optimistic(states), model.reward_head_of(4).optimistic(states)
+    )
+    assert loaded.replay_buffer.size() == 580
+
+
+def test_the_zip_holds_no_env_and_no_closure(tmp_path):
+    """The known head's reward_fn is the env's method: it is not saved, and load binds the new env's."""
+    env = gym.make(MAZE_ID, tasks="all")
+    model = TRLSD("LinearPolicy", env, reward_head="known", source_transitions=300, seed=0)
+    model.learn(total_timesteps=5)
+    model.save(tmp_path / "known")
+    with zipfile.ZipFile(tmp_path / "known.zip") as archive:
+        data = json.loads(archive.read("data"))
+    pickled = base64.b64decode(data["task_learners"][":serialized:"])
+    assert b"SharedDynamicsMaze" not in pickled and b"functools" not in pickled
+    assert "reward_fn" not in data
+    loaded = TRLSD.load(tmp_path / "known", env=gym.make(MAZE_ID, tasks="all"))
+    states = np.array([[0.5, 0.5], [2.5, 2.5]])
+    np.testing.assert_array_equal(loaded.reward_head_of(0).estimate(states), [1.0, 0.0])
+    without_env = TRLSD.load(tmp_path / "known")
+    with pytest.raises(ValueError, match="reward_fn"):
+        without_env.reward_head_of(0).estimate(states)
+
+
+def test_a_model_saved_without_its_rows_warns_at_learn_and_names_the_call(tmp_path):
+    """If the buffer cannot come back (rows left out of the zip), learn says what restores it."""
+    model = TRLSD("LinearPolicy", gym.make(MAZE_ID, task=(1, 5)), source_transitions=300, seed=0)
+    model.learn(total_timesteps=10)
+    model.save(tmp_path / "model")
+    loaded = TRLSD.load(tmp_path / "model", env=gym.make(MAZE_ID, task=(1, 5)))
+    loaded.replay_buffer.reset()
+    with pytest.warns(UserWarning, match="load_replay_buffer"):
+        loaded.learn(total_timesteps=2)
+
+
+def online_step(model, reward=0.0, state=(1.0, 1.0), next_state=(1.5, 1.0), task=0):
+    obs = {"state": np.array(state, dtype=np.float32), "task": task}
+    next_obs = {"state": np.array(next_state, dtype=np.float32), "task": task}
+    model.add_online_transition(obs, 2, reward, next_obs, False, False)
+
+
+@pytest.mark.parametrize(
+    ("step", "message"),
+    [
+        ({"reward": np.nan}, "reward"),
+        ({"reward": -np.inf}, "reward"),
+        ({"state": (np.nan, 1.0)}, "state"),
+        ({"next_state": (1.0, np.inf)}, "next state"),
+        ({"task": 25}, "tasks"),
+    ],
+    ids=["nan-reward", "inf-reward", "nan-state", "inf-next-state", "task-out-of-range"],
+)
+def test_a_bad_online_transition_leaves_the_model_as_it_was_and_learning(source_transitions, step, message):
+    """Rejected before anything is stored: buffer, head, step count and refits unchanged; then it learns."""
+    model = TRLSD("LinearPolicy", gym.make(MAZE_ID, tasks="all"), seed=0)
+    model.load_transitions(source_transitions)
+    for _ in range(3):
+        online_step(model, reward=1.0)
+    before = (
+        model.replay_buffer.packed_rows(),
+        model.num_timesteps,
+        model.policy_updates,
+        model.reward_head_of(0).n_samples,
+    )
+    with pytest.raises(ValueError, match=message):
+        online_step(model, **step)
+    after = (
+        model.replay_buffer.packed_rows(),
+        model.num_timesteps,
+        model.policy_updates,
+        model.reward_head_of(0).n_samples,
+    )
+    np.testing.assert_array_equal(after[0], before[0])
+    assert after[1:] == before[1:]
+    online_step(model, reward=1.0)
+    model.update_policy(0)
+    assert model.reward_head_of(0).n_samples == 4 and np.isfinite(model.policy.theta.numpy()).all()
+
+
+class RewardOnce(gym.Wrapper):
+    """Returns ``bad`` as the reward of step ``at``, the env's reward otherwise."""
+
+    def __init__(self, env, at, bad):
+        super().__init__(env)
+        self.at, self.bad, self.steps = at, bad, 0
+
+    def step(self, action):
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        self.steps += 1
+        return obs, self.bad if self.steps == self.at else reward, terminated, truncated, info
+
+
+def test_an_env_returning_nan_inside_learn_raises_and_the_model_goes_on(source_transitions):
+    """A NaN reward from the env stops learn with a ValueError; nothing was stored; learning goes on."""
+    env = RewardOnce(gym.make(MAZE_ID, task=(1, 1)), at=30, bad=np.nan)
+    model = TRLSD("LinearPolicy", env, seed=0)
+    model.load_transitions(source_transitions)
+    with pytest.raises(ValueError, match="reward"):
+        model.learn(total_timesteps=100)
+    assert model.replay_buffer.size() == len(source_transitions) + 29
+    assert model.reward_head_of(0).n_samples == 29
+    model.learn(total_timesteps=50, reset_num_timesteps=False)
+    assert model.reward_head_of(0).n_samples > 29 and np.isfinite(model.policy.theta.numpy()).all()
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "argument"),
+    [
+        ({"kappa": np.nan}, "kappa"),
+        ({"kappa": np.inf}, "kappa"),
+        ({"sigma": np.nan}, "sigma"),
+        ({"update_ratio": np.nan}, "update_ratio"),
+        ({"gamma": np.nan}, "gamma"),
+        ({"fqi_tol": -1e-4}, "fqi_tol"),
+        ({"fqi_tol": np.nan}, "fqi_tol"),
+        ({"fqi_max_iterations": 0}, "fqi_max_iterations"),
+        ({"rbf_per_dim": 0}, "rbf_per_dim"),
+        ({"rbf_sigma": -0.2}, "rbf_sigma"),
+        ({"policy_kwargs": {"rbf_per_dim": 7}}, "rbf_per_dim"),
+    ],
+    ids=[
+        "nan-kappa",
+        "inf-kappa",
+        "nan-sigma",
+        "nan-update-ratio",
+        "nan-gamma",
+        "negative-tol",
+        "nan-tol",
+        "no-iterations",
+        "no-rbf",
+        "negative-rbf-sigma",
+        "rbf-in-policy-kwargs",
+    ],
+)
+def test_bad_constructor_values_fail_at_construction_naming_the_argument(kwargs, argument):
+    """NaN passes a `< 0` check: every setting is checked for what it must be, at construction."""
+    with pytest.raises(ValueError, match=argument):
+        TRLSD("LinearPolicy", gym.make(MAZE_ID), **kwargs)
+
+
+def test_the_policy_and_the_ridge_heads_share_one_feature_map():
+    """One definition of Phi: TRLSD's rbf_per_dim reaches the policy and every ridge head alike."""
+    model = TRLSD("LinearPolicy", gym.make(MAZE_ID, tasks="all"), rbf_per_dim=7, seed=0)
+    assert model.policy.features is model.features and model.features.n_features == 49
+    assert model.reward_head_of(3).features is model.features
+    assert model.policy.theta.shape == (25, 4, 49)
+
+
+def test_predict_on_a_task_never_fitted_warns_once_per_task():
+    """Action 0 everywhere is what an unfitted Q gives: say so, once per task, instead of silently."""
+    model = TRLSD("LinearPolicy", gym.make(MAZE_ID, tasks="all"), seed=0)
+    obs = {"state": np.array([2.5, 2.5], dtype=np.float32), "task": 3}
+    with pytest.warns(UserWarning, match="task 3 has never been fitted"):
+        model.predict(obs)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        model.predict(obs)
+        model.update_policy(5)
+        model.predict({**obs, "task": 5})
+    with pytest.warns(UserWarning, match="task 4"):
+        model.predict({"state": np.ones((2, 2), dtype=np.float32), "task": np.array([4, 5])})
+
+
+def test_pictures_of_the_first_refit_and_every_period_all_reach_the_event_file(tmp_path):
+    """
+    With the default log_interval (4 episodes, here ~4 dumps in 300 steps) a picture recorded into the
+    logger would be overwritten before the dump; written when made, every due picture is in the file.
+    """
+    model = TRLSD(
+        "LinearPolicy",
+        gym.make(MAZE_ID, task=(1, 5)),
+        source_transitions=500,
+        log_picture_every=3,
+        tensorboard_log=str(tmp_path),
+        seed=0,
+    )
+    model.learn(total_timesteps=300)
+    steps = []
+    for event_file in tmp_path.rglob("events.out.tfevents.*"):
+        for event in EventFileLoader(str(event_file)).Load():
+            steps += [event.step for value in event.summary.value if value.tag == "pictures/task_4"]
+    refits = model.policy_updates[4]
+    assert refits >= 6
+    assert len(steps) == 1 + refits // 3
+    assert steps[0] == 0  # the first refit, before the first step
+
+
+def test_a_user_package_named_envs_does_not_break_the_mazes_registration(tmp_path):
+    """The maze installs as sb3_trlsd_envs: a project's own envs package neither shadows nor is shadowed."""
+    package = tmp_path / "envs"
+    package.mkdir()
+    (package / "__init__.py").write_text("USER_ENVS = True\n")
+    code = (
+        "import envs, sb3_trlsd, gymnasium as gym\n"
+        "assert envs.USER_ENVS\n"
+        "env = gym.make('TRLSD/SharedDynamicsMaze-v0', task=(2, 3))\n"
+        "print(type(env.unwrapped).__module__)\n"
+    )
+    environment = {**os.environ, "PYTHONPATH": str(tmp_path)}
+    result = subprocess.run(
+        [sys.executable, "-c", code],
+        cwd=tmp_path,
+        env=environment,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip() == "sb3_trlsd_envs.maze"
