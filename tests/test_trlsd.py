@@ -224,6 +224,17 @@ def test_multi_task_env_triggers_each_task_on_its_own():
         ({"source_transitions": 0}, "source_transitions"),
         ({"source_transitions": 2.5}, "source_transitions"),
         ({"log_picture_every": -1}, "log_picture_every"),
+        ({"kappa": np.nan}, "kappa"),
+        ({"kappa": np.inf}, "kappa"),
+        ({"sigma": np.nan}, "sigma"),
+        ({"update_ratio": np.nan}, "update_ratio"),
+        ({"gamma": np.nan}, "gamma"),
+        ({"fqi_tol": -1e-4}, "fqi_tol"),
+        ({"fqi_tol": np.nan}, "fqi_tol"),
+        ({"fqi_max_iterations": 0}, "fqi_max_iterations"),
+        ({"rbf_per_dim": 0}, "rbf_per_dim"),
+        ({"rbf_sigma": -0.2}, "rbf_sigma"),
+        ({"policy_kwargs": {"rbf_per_dim": 7}}, "rbf_per_dim"),
     ],
     ids=[
         "negative-kappa",
@@ -234,10 +245,21 @@ def test_multi_task_env_triggers_each_task_on_its_own():
         "no-source",
         "fractional-source",
         "negative-picture-period",
+        "nan-kappa",
+        "inf-kappa",
+        "nan-sigma",
+        "nan-update-ratio",
+        "nan-gamma",
+        "negative-tol",
+        "nan-tol",
+        "no-iterations",
+        "no-rbf",
+        "negative-rbf-sigma",
+        "rbf-in-policy-kwargs",
     ],
 )
 def test_bad_hyperparameters_are_refused_by_name(kwargs, argument):
-    """Each bad setting raises a ValueError naming the argument at construction."""
+    """Each bad setting raises a ValueError naming the argument at construction (NaN passes a `< 0` check)."""
     with pytest.raises(ValueError, match=argument):
         TRLSD("LinearPolicy", gym.make(MAZE_ID), **kwargs)
 
