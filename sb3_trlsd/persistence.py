@@ -14,7 +14,7 @@ from __future__ import annotations
 import io
 import pathlib
 import pickle
-from typing import TYPE_CHECKING, Any, TypeVar
+from typing import Any, TypeVar
 
 import torch as th
 from stable_baselines3.common.save_util import load_from_pkl
@@ -23,9 +23,6 @@ from stable_baselines3.common.type_aliases import GymEnv
 from sb3_trlsd.buffers import SharedDynamicsReplayBuffer
 from sb3_trlsd.reward_heads import KnownRewardHead
 from sb3_trlsd.settings import known_reward_fn
-
-if TYPE_CHECKING:
-    from sb3_trlsd.trlsd import TRLSD
 
 SelfSaves = TypeVar("SelfSaves", bound="SavesSharedBuffer")
 
@@ -40,7 +37,7 @@ def empty_rows() -> th.Tensor:
     return th.zeros(0, dtype=th.float64)
 
 
-def restore_after_load(model: TRLSD) -> None:
+def restore_after_load(model: Any) -> None:
     """
     After SB3's ``load``: put the saved rows back in the (new, empty) shared buffer and give the known
     reward heads their reward function (the model's ``reward_fn`` or the env's ``expected_reward``).
@@ -138,7 +135,7 @@ class SavesSharedBuffer:
     ) -> SelfSaves:
         """SB3's ``load``; the shared buffer comes back with its rows, the known heads with reward_fn."""
         model = super().load(path, env, device, custom_objects, print_system_info, force_reset, **kwargs)
-        restore_after_load(model)  # type: ignore[arg-type]
+        restore_after_load(model)
         return model
 
     def load_replay_buffer(

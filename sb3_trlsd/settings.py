@@ -5,18 +5,24 @@ from __future__ import annotations
 import copy
 import math
 import os
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 from gymnasium import spaces
 
+from sb3_trlsd.features import RBFGrid
 from sb3_trlsd.observations import state_space_of
+from sb3_trlsd.policies import LinearPolicy
 from sb3_trlsd.reward_heads import REWARD_HEAD_NAMES, SIMILARITIES, RewardFn, RewardHead, make_reward_head
 
-if TYPE_CHECKING:
-    from sb3_trlsd.trlsd import TRLSD
-
-__all__ = ["check_arguments", "hyperparameters_of", "known_reward_fn", "new_reward_head"]
+__all__ = [
+    "check_arguments",
+    "hyperparameters_of",
+    "known_reward_fn",
+    "new_reward_head",
+    "resolve_policy",
+    "shared_features",
+]
 
 # Settings of the features Phi that belong to TRLSD (which shares Phi between the policy and the heads).
 FEATURE_SETTINGS = ("features", "rbf_per_dim", "rbf_sigma")
@@ -31,7 +37,7 @@ def _require(condition: bool, name: str, meaning: str, value: Any) -> None:
         raise ValueError(f"{name} must be {meaning}, got {value!r}")
 
 
-def check_arguments(model: TRLSD) -> None:
+def check_arguments(model: Any) -> None:
     """
     Reject bad settings of ``model``, naming the argument (NaN and infinite values included).
 
@@ -117,7 +123,7 @@ class _SingleTaskReward:
         return self.expected_reward(states)
 
 
-def known_reward_fn(model: TRLSD, required: bool = True) -> RewardFn | None:
+def known_reward_fn(model: Any, required: bool = True) -> RewardFn | None:
     """
     The expected reward the ``"known"`` head uses: the model's ``reward_fn``, or else the env's
     ``expected_reward(states, task)`` (``expected_reward(states)`` for a single-task Box observation).
@@ -140,7 +146,7 @@ def known_reward_fn(model: TRLSD, required: bool = True) -> RewardFn | None:
     return None
 
 
-def new_reward_head(model: TRLSD, task: int) -> RewardHead:
+def new_reward_head(model: Any, task: int) -> RewardHead:
     """
     A reward head for ``task`` with no samples, as the model's settings say: a copy of the model's
     ``RewardHead`` instance, or the named head with kappa, sigma, the shared features and the head kwargs.
@@ -164,7 +170,7 @@ def new_reward_head(model: TRLSD, task: int) -> RewardHead:
     )
 
 
-def hyperparameters_of(model: TRLSD) -> dict[str, int | float | str | bool]:
+def hyperparameters_of(model: Any) -> dict[str, int | float | str | bool]:
     """The settings of ``model``, as TensorBoard's HParams tab shows them (numbers, or their text)."""
     head = model.reward_head if isinstance(model.reward_head, str) else type(model.reward_head).__name__
     settings = {
@@ -186,3 +192,28 @@ def hyperparameters_of(model: TRLSD) -> dict[str, int | float | str | bool]:
     return {
         key: value if isinstance(value, (int, float, bool)) else str(value) for key, value in settings.items()
     }
+
+
+def resolve_policy(policy: Any, aliases: dict[str, type]) -> type:
+    """
+    The policy class of ``policy``: a class as it is, or the class of a name among ``aliases``.
+
+    :raises ValueError: for an unknown name
+    """
+    if not isinstance(policy, str):
+        return policy
+    if policy not in aliases:
+        raise ValueError(f"policy must be one of {sorted(aliases)} or a policy class, got {policy!r}")
+    return aliases[policy]
+
+
+def shared_features(model: Any) -> RBFGrid | None:
+    """
+    The feature map Phi of ``model``, built once from its ``rbf_per_dim`` and ``rbf_sigma`` over the state
+    Box and shared by the linear policy and the ridge heads; None when neither uses features.
+
+    :param model: a ``TRLSD`` model with its spaces
+    """
+    if not (issubclass(model.policy_class, LinearPolicy) or model.reward_head == "ridge"):
+        return None
+    return RBFGrid.for_box(state_space_of(model.observation_space), model.rbf_per_dim, model.rbf_sigma)

@@ -4,19 +4,16 @@ from __future__ import annotations
 
 import dataclasses
 import warnings
-from typing import TYPE_CHECKING
+from typing import Any
 
 import gymnasium as gym
 
 from sb3_trlsd.data import Transitions, collect_transitions
 
-if TYPE_CHECKING:
-    from sb3_trlsd.trlsd import TRLSD
-
 __all__ = ["load_source_once", "source_transitions_of"]
 
 
-def source_transitions_of(model: TRLSD) -> Transitions:
+def source_transitions_of(model: Any) -> Transitions:
     """
     The transitions ``model.source_transitions`` names: that many random transitions from a copy of the
     model's env (``gym.make`` of its spec, seeded by ``source_seed`` or the model's seed), or the ``.npz``
@@ -45,7 +42,7 @@ def source_transitions_of(model: TRLSD) -> Transitions:
         source_env.close()
 
 
-def load_source_once(model: TRLSD) -> None:
+def load_source_once(model: Any) -> None:
     """
     Before ``learn``: load the source set into the shared buffer the first time (rewards discarded), and
     warn when the buffer is empty although the model learnt before (a model saved without its rows).

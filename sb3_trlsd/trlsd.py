@@ -19,11 +19,17 @@ from sb3_trlsd.callbacks import log_hyperparameters, log_refit
 from sb3_trlsd.data import Transitions
 from sb3_trlsd.features import RBFGrid
 from sb3_trlsd.fqi import DEFAULT_TOL
-from sb3_trlsd.observations import split_observation, state_space_of
+from sb3_trlsd.observations import split_observation
 from sb3_trlsd.persistence import SavesSharedBuffer, empty_rows
 from sb3_trlsd.policies import LinearPolicy, MlpPolicy, TaskQPolicy
 from sb3_trlsd.reward_heads import RewardFn, RewardHead
-from sb3_trlsd.settings import check_arguments, hyperparameters_of, new_reward_head
+from sb3_trlsd.settings import (
+    check_arguments,
+    hyperparameters_of,
+    new_reward_head,
+    resolve_policy,
+    shared_features,
+)
 from sb3_trlsd.source_data import load_source_once
 from sb3_trlsd.task_learner import TaskLearner
 
@@ -45,19 +51,14 @@ class TRLSD(SavesSharedBuffer, OffPolicyAlgorithm):
     Every transition of every task goes to one shared replay buffer; for a target task, the rewards of
     the whole buffer are replaced by an optimistic reward proxy R~ = R^ + CI learnt from that task's own
     samples (section 3), and the task's Q-function is refitted on that relabelled set by Fitted-Q
-    Iteration (Algorithm 1). A task's Q is refitted at its first step and then whenever the confidence
-    interval at an encountered state has been divided by ``update_ratio`` since its last refit. Each task's
-    learning state (reward head, trigger, refit count, relabelling) is a ``TaskLearner``.
+    Iteration (Algorithm 1): at the task's first step, then whenever the CI at an encountered state has
+    been divided by ``update_ratio`` since its last refit. Each task's learning state is a ``TaskLearner``;
+    ``save`` keeps them and the buffer's rows, so that a loaded model goes on as an uninterrupted one.
 
     Defaults are the paper's (section 4) where it gives them: kappa and sigma of the continuous setting,
     ``update_ratio=2``, lambda = 1 for the reward regression, 5x5 RBFs of width 0.2. The paper does not
-    give the discount factor: ``gamma=0.9`` makes the maze's reward cell worth reaching from anywhere in the
-    5x5 grid (its effective horizon of ~10 steps covers the longest path around the walls) while keeping
-    the fixed-point iterations of FQI short.
-
-    ``save`` keeps everything needed to go on learning as an uninterrupted run would: the task learners
-    (reward heads with their samples, trigger state, refit counts), the Q-functions, and the shared
-    buffer's rows (``save_replay_buffer`` remains available for the buffer alone).
+    give the discount factor: ``gamma=0.9`` makes the maze's reward cell worth reaching from anywhere
+    (its effective horizon of ~10 steps covers the longest path around the walls) and keeps FQI short.
 
     :param policy: ``"LinearPolicy"`` (the paper's linear Q on RBF features) or ``"MlpPolicy"``
     :param env: the environment (Gymnasium env, VecEnv with one env, or registered id); observations are a
@@ -148,15 +149,9 @@ class TRLSD(SavesSharedBuffer, OffPolicyAlgorithm):
         device: th.device | str = "cpu",
         _init_setup_model: bool = True,
     ):
-        if isinstance(policy, str):
-            if policy not in self.policy_aliases:
-                raise ValueError(
-                    f"policy must be one of {sorted(self.policy_aliases)} or a policy class, got {policy!r}"
-                )
-            # Resolved here: SB3 would otherwise ask for "MultiInputPolicy" on Dict observations.
-            policy = self.policy_aliases[policy]  # type: ignore[assignment]
         super().__init__(
-            policy=policy,
+            # Resolved here: SB3 would otherwise ask for "MultiInputPolicy" on Dict observations.
+            policy=resolve_policy(policy, self.policy_aliases),
             env=env,
             learning_rate=learning_rate,
             buffer_size=buffer_size,
@@ -203,12 +198,9 @@ class TRLSD(SavesSharedBuffer, OffPolicyAlgorithm):
                 "replay_buffer_class must be a SharedDynamicsReplayBuffer subclass, "
                 f"got {self.replay_buffer_class}"
             )
-        # One feature map Phi, shared by the linear policy and the ridge heads.
-        state_space = state_space_of(self.observation_space)
-        needs_features = issubclass(self.policy_class, LinearPolicy) or self.reward_head == "ridge"
-        self.features = (
-            RBFGrid.for_box(state_space, self.rbf_per_dim, self.rbf_sigma) if needs_features else None
-        )
+        self.features = shared_features(
+            self
+        )  # one feature map Phi, for the linear policy and the ridge heads
         if issubclass(self.policy_class, LinearPolicy):
             self.policy_kwargs["features"] = self.features
         super()._setup_model()
