@@ -8,6 +8,8 @@ terminated (an absorbing state: they do not).
 from __future__ import annotations
 
 import os
+import zipfile
+import zlib
 from dataclasses import dataclass, fields
 
 import gymnasium as gym
@@ -15,7 +17,18 @@ import numpy as np
 from gymnasium import spaces
 from tqdm.auto import tqdm
 
-__all__ = ["Transitions", "collect_transitions"]
+__all__ = ["Transitions", "collect_transitions", "load_npz_arrays"]
+
+# dtype kinds (numpy's ``dtype.kind``) a loaded file may hold, per field, and how to name them.
+LOADED_KINDS = {
+    "states": ("iuf", "real numbers"),
+    "actions": ("iu", "integers"),
+    "next_states": ("iuf", "real numbers"),
+    "rewards": ("iuf", "real numbers"),
+    "tasks": ("iu", "integers"),
+    "truncations": ("b", "booleans"),
+    "terminations": ("b", "booleans"),
+}
 
 
 @dataclass(frozen=True)
@@ -90,23 +103,63 @@ class Transitions:
 
         :param path: a ``.npz`` file written by :meth:`save`
         :return: the transitions, validated
-        :raises ValueError: if the file lacks a field or its arrays are inconsistent
+        :raises ValueError: naming the file, if it is not a readable ``.npz`` file, lacks a field, or holds
+            arrays of the wrong kind or of inconsistent shapes
         """
-        with np.load(path, allow_pickle=False) as archive:
-            names = [field.name for field in fields(cls)]
-            missing = sorted(set(names) - set(archive.files))
-            if missing:
+        arrays = load_npz_arrays(path)
+        names = [field.name for field in fields(cls)]
+        missing = sorted(set(names) - set(arrays))
+        if missing:
+            raise ValueError(
+                f"{os.fspath(path)!r} is not a transitions file: it lacks the arrays {missing} "
+                f"(expected {names})"
+            )
+        for name, (kinds, expected) in LOADED_KINDS.items():
+            if arrays[name].dtype.kind not in kinds:
                 raise ValueError(
-                    f"{os.fspath(path)!r} is not a transitions file: it lacks the arrays {missing} "
-                    f"(expected {names})"
+                    f"{os.fspath(path)!r} is not a valid transitions file: its array {name!r} has dtype "
+                    f"{arrays[name].dtype}, expected {expected}"
                 )
-            return cls(**{name: archive[name] for name in names})
+        try:
+            return cls(**{name: arrays[name] for name in names})
+        except ValueError as error:
+            raise ValueError(f"{os.fspath(path)!r} is not a valid transitions file: {error}") from error
 
-    def concatenate(self, other: Transitions) -> Transitions:
-        """Both sets of transitions, ``self`` first."""
-        return Transitions(
-            **{f.name: np.concatenate([getattr(self, f.name), getattr(other, f.name)]) for f in fields(self)}
-        )
+
+def load_npz_arrays(path: str | os.PathLike) -> dict[str, np.ndarray]:
+    """
+    Every array of an ``.npz`` file, read at once, nothing unpickled (``allow_pickle=False``).
+
+    :param path: the file
+    :return: its arrays by name
+    :raises OSError: if the file cannot be opened (missing, a directory, not readable)
+    :raises ValueError: naming the file, if it is not an ``.npz`` file of arrays or is truncated or damaged
+    """
+    name = os.fspath(path)
+    try:
+        archive = np.load(path, allow_pickle=False)
+    except (EOFError, zipfile.BadZipFile) as error:
+        raise ValueError(
+            f"{name!r} is not a readable .npz file, it is empty, truncated or damaged "
+            f"({type(error).__name__}: {error})"
+        ) from error
+    except ValueError as error:  # neither a zip nor an .npy: numpy would have to unpickle it
+        raise ValueError(
+            f"{name!r} is not an .npz file: neither a zip of arrays nor an array (pickles are not loaded)"
+        ) from error
+    if not isinstance(archive, np.lib.npyio.NpzFile):
+        raise ValueError(f"{name!r} holds one array (an .npy file), not an .npz file of named arrays")
+    with archive:
+        arrays = {}
+        for key in archive.files:
+            try:
+                arrays[key] = archive[key]
+            except (EOFError, ValueError, zipfile.BadZipFile, zlib.error) as error:
+                raise ValueError(
+                    f"{name!r}: its array {key!r} cannot be read, the file is damaged or the array holds "
+                    f"Python objects ({type(error).__name__}: {error})"
+                ) from error
+    return arrays
 
 
 def split_observation(obs: dict[str, np.ndarray] | np.ndarray) -> tuple[np.ndarray, int]:

@@ -1,12 +1,14 @@
 """collect_transitions and the .npz round trip of Transitions."""
 
 import dataclasses
+import pickle
+import re
 
 import gymnasium as gym
 import numpy as np
 import pytest
 
-from sb3_trlsd import Transitions, collect_transitions
+from sb3_trlsd import TRLSD, Transitions, collect_transitions
 from tests.conftest import MAZE_ID
 
 
@@ -60,6 +62,73 @@ def test_loading_a_file_that_is_not_transitions_fails_clearly(tmp_path, source_t
     np.savez(path, **{**arrays, "states": arrays["states"][:, :1]})
     with pytest.raises(ValueError, match="states"):
         Transitions.load(path)
+
+
+def save_with(path, transitions, **replaced) -> None:
+    """``transitions`` saved to ``path`` with some arrays replaced."""
+    np.savez(
+        path,
+        **{**{f.name: getattr(transitions, f.name) for f in dataclasses.fields(Transitions)}, **replaced},
+    )
+
+
+def truncate(path, transitions) -> None:
+    transitions.save(path)
+    path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+
+
+def save_one_array(path, transitions) -> None:
+    """An ``.npy`` file under an ``.npz`` name."""
+    with open(path, "wb") as file:
+        np.save(file, transitions.states)
+
+
+def flip_a_byte(path, transitions) -> None:
+    """Damage inside an array's data: the zip's directory is whole, the CRC of one member is not."""
+    transitions.save(path)
+    data = bytearray(path.read_bytes())
+    data[200] ^= 0xFF
+    path.write_bytes(bytes(data))
+
+
+DAMAGED_FILES = {
+    "empty": (lambda path, data: path.write_bytes(b""), "empty, truncated or damaged"),
+    "truncated": (truncate, "empty, truncated or damaged"),
+    "a byte flipped": (flip_a_byte, "damaged"),
+    "text": (lambda path, data: path.write_text("states,actions\n"), "not an .npz file"),
+    "a pickle": (lambda path, data: path.write_bytes(pickle.dumps(data)), "pickles are not loaded"),
+    "one array": (save_one_array, "holds one array"),
+    "objects": (lambda path, data: save_with(path, data, tasks=data.tasks.astype(object)), "Python objects"),
+    "float flags": (
+        lambda path, data: save_with(path, data, truncations=data.truncations.astype(float)),
+        "'truncations' has dtype float64, expected booleans",
+    ),
+    "text states": (
+        lambda path, data: save_with(path, data, states=data.states.astype(str)),
+        "'states' has dtype <U32, expected real numbers",
+    ),
+}
+
+
+@pytest.mark.parametrize("damage", list(DAMAGED_FILES), ids=list(DAMAGED_FILES))
+def test_a_damaged_or_foreign_file_is_refused_by_name(tmp_path, source_transitions, damage):
+    """Before, these raised BadZipFile, EOFError or TypeError without the path, or loaded wrong flags."""
+    write, what = DAMAGED_FILES[damage]
+    path = tmp_path / "source.npz"
+    write(path, source_transitions)
+    with pytest.raises(ValueError, match=re.escape(repr(str(path)))) as error:
+        Transitions.load(path)
+    assert what in str(error.value)
+    assert "\n" not in str(error.value)
+
+
+def test_a_damaged_source_file_of_trlsd_is_named_by_learn(tmp_path, source_transitions):
+    """``TRLSD(source_transitions=<path>)`` loads the file at the first ``learn``: the error names it."""
+    path = tmp_path / "source.npz"
+    truncate(path, source_transitions)
+    model = TRLSD("LinearPolicy", gym.make(MAZE_ID, task=(1, 1)), source_transitions=str(path), seed=0)
+    with pytest.raises(ValueError, match=re.escape(repr(str(path))) + " is not a readable .npz file"):
+        model.learn(1)
 
 
 def test_collect_rejects_bad_arguments():
