@@ -1,12 +1,10 @@
 """
-The experiments' fast path against ``TRLSD.learn``, the cache of finished runs, and the ``reproduce``
-command on tiny sizes.
+The experiments' fast path against ``TRLSD.learn``, and the ``reproduce`` command on tiny sizes (the kept
+runs: ``test_run_cache.py``; interrupts and paths: ``test_cli.py``).
 """
 
 import csv
 import json
-import os
-from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -15,18 +13,15 @@ from matplotlib.image import imread
 
 from sb3_trlsd import collect_transitions
 from sb3_trlsd.cli import main
-from sb3_trlsd.experiments import FIGURES, multitask, run_cache, runner
+from sb3_trlsd.experiments import FIGURES, multitask, runner
 from sb3_trlsd.experiments.reporting import (
     mean_and_standard_error,
     moving_average,
     results_table,
     window_means,
 )
-from sb3_trlsd.experiments.run_cache import run_key
-from sb3_trlsd.experiments.runner import Method, RunRecord, multitask_run, run_jobs, transfer_run
+from sb3_trlsd.experiments.runner import Method, multitask_run, transfer_run
 from sb3_trlsd_envs import MAZE_ID, expected_reward
-
-CALL_LOG_VARIABLE = "SB3_TRLSD_TEST_CALL_LOG"  # file where counted_transfer_run writes the seed of each call
 
 
 @pytest.mark.parametrize(
@@ -80,138 +75,6 @@ def test_reporting_statistics_match_numpy():
     assert windows["[0, 2)"]["mean"] == pytest.approx(4.5)
     assert windows["[2, 4)"]["se"] == pytest.approx(4.0 / np.sqrt(3))
     np.testing.assert_allclose(moving_average(np.array([1.0, 3.0, 5.0, 7.0]), 2), [1, 2, 4, 6])
-
-
-def counted_transfer_run(*args: Any, **kwargs: Any) -> RunRecord:
-    """``transfer_run``, writing its seed to the file ``$SB3_TRLSD_TEST_CALL_LOG`` (workers can write it)."""
-    with open(os.environ[CALL_LOG_VARIABLE], "a") as log:
-        log.write(f"{args[2]}\n")
-    return transfer_run(*args, **kwargs)
-
-
-@pytest.fixture
-def called_seeds(tmp_path, monkeypatch):
-    """A function returning the seeds ``counted_transfer_run`` has been called with so far, in order."""
-    log = tmp_path / "calls.txt"
-    log.touch()
-    monkeypatch.setenv(CALL_LOG_VARIABLE, str(log))
-    return lambda: [int(line) for line in log.read_text().split()]
-
-
-def small_jobs(tasks_and_seeds, **kwargs) -> list[tuple[tuple, dict]]:
-    """Jobs of ``counted_transfer_run``: 300 source and 30 online transitions of the ridge head."""
-    return [
-        ((Method("ridge"), task, seed), {"n_source": 300, "n_online": 30, **kwargs})
-        for task, seed in tasks_and_seeds
-    ]
-
-
-def assert_same_records(records: list[RunRecord], expected: list[RunRecord]) -> None:
-    assert len(records) == len(expected)
-    for record, other in zip(records, expected, strict=True):
-        np.testing.assert_array_equal(record.rewards, other.rewards)
-        np.testing.assert_array_equal(record.tasks, other.tasks)
-        assert (record.policy_updates, record.seconds) == (other.policy_updates, other.seconds)
-        assert len(record.snapshots) == len(other.snapshots)
-        for snapshot, other_snapshot in zip(record.snapshots, other.snapshots, strict=True):
-            assert snapshot.step == other_snapshot.step
-            np.testing.assert_array_equal(snapshot.reward_estimate, other_snapshot.reward_estimate)
-            np.testing.assert_array_equal(snapshot.policy, other_snapshot.policy)
-            np.testing.assert_array_equal(snapshot.trajectory, other_snapshot.trajectory)
-
-
-def test_run_jobs_loads_finished_runs_from_the_cache(tmp_path, called_seeds):
-    """A second call with the same cache must return the stored records without running anything."""
-    jobs = small_jobs([(3, 0), (8, 1)], snapshot_at=[10])
-    first = run_jobs(counted_transfer_run, jobs, cache=tmp_path / "runs")
-    assert called_seeds() == [0, 1]
-    assert len(list((tmp_path / "runs").iterdir())) == 2  # one file per run, no temporary file left
-
-    second = run_jobs(counted_transfer_run, jobs, cache=tmp_path / "runs")
-    assert called_seeds() == [0, 1]
-    assert_same_records(second, first)
-    assert second[0].snapshots  # pictures survive the round trip
-
-
-def test_run_jobs_misses_the_cache_when_an_argument_or_the_code_changes(tmp_path, called_seeds, monkeypatch):
-    """A stale record would be silently plotted: another seed, or edited code, must run again."""
-    run_jobs(counted_transfer_run, small_jobs([(3, 0)]), cache=tmp_path)
-    (other_seed,) = run_jobs(counted_transfer_run, small_jobs([(3, 1)]), cache=tmp_path)
-    assert called_seeds() == [0, 1]
-    assert other_seed.tasks[0] == 3
-
-    monkeypatch.setattr(run_cache, "code_fingerprint", lambda module: "the code after an edit")
-    run_jobs(counted_transfer_run, small_jobs([(3, 0)]), cache=tmp_path)
-    assert called_seeds() == [0, 1, 0]
-    assert len(list(tmp_path.glob("*.pkl"))) == 3
-
-
-def test_fingerprint_covers_the_code_a_run_imports_and_not_the_reporting():
-    """Editing the algorithm must invalidate the runs; redrawing a figure or the command line must not."""
-    modules = run_cache.fingerprinted_modules("sb3_trlsd.experiments.runner")
-    for executed in (
-        "sb3_trlsd.trlsd",
-        "sb3_trlsd.fqi",
-        "sb3_trlsd.reward_heads",
-        "sb3_trlsd_envs.maze",
-        "sb3_trlsd_envs.dynamics",
-    ):
-        assert executed in modules
-    for not_run in ("reporting", "figures", "multitask", "transfer"):
-        assert f"sb3_trlsd.experiments.{not_run}" not in modules
-    assert "sb3_trlsd.cli" not in modules
-
-
-def test_fingerprint_changes_with_an_imported_module_only(tmp_path, monkeypatch):
-    """A package where the run imports ``core`` inside a function, and ``plot`` is never imported by it."""
-    package = tmp_path / "fakepkg"
-    package.mkdir()
-    (package / "__init__.py").write_text("")
-    (package / "run.py").write_text("def run():\n    from fakepkg import core\n    return core.VALUE\n")
-    (package / "core.py").write_text("VALUE = 1\n")
-    (package / "plot.py").write_text("from fakepkg.run import run\n")
-    monkeypatch.syspath_prepend(str(tmp_path))
-    monkeypatch.setattr(run_cache, "FINGERPRINTED_PACKAGES", ("fakepkg",))
-    assert run_cache.fingerprinted_modules("fakepkg.run") == {"fakepkg", "fakepkg.run", "fakepkg.core"}
-
-    def fingerprint() -> str:
-        run_cache.code_fingerprint.cache_clear()
-        return run_cache.code_fingerprint("fakepkg.run")
-
-    before = fingerprint()
-    (package / "plot.py").write_text("from fakepkg.run import run\nLABEL = 'redrawn'\n")
-    assert fingerprint() == before
-    (package / "core.py").write_text("VALUE = 2\n")
-    assert fingerprint() != before
-    run_cache.code_fingerprint.cache_clear()
-
-
-def test_run_key_ignores_how_the_same_run_is_spelled():
-    """Positional or keyword, defaults left out, ranges or tuples, dict order: one run, one key."""
-    method = Method("ridge", kappa=0.3)
-    key = run_key(transfer_run, (method, 3, 0), {"snapshot_at": range(2), "env_kwargs": {"a": 1, "b": 2}})
-    same_run = {"seed": 0, "n_source": None, "snapshot_at": (0, 1), "env_kwargs": {"b": 2, "a": 1}}
-    assert run_key(transfer_run, (Method("ridge", kappa=0.3), 3), same_run) == key
-    another_method = run_key(transfer_run, (Method("ridge", kappa=0.1), 3, 0), {})
-    assert another_method != run_key(transfer_run, (method, 3, 0), {})
-    assert run_key(multitask_run, (method, 0), {}) != run_key(transfer_run, (method, 0, 0), {})
-    with pytest.raises(TypeError, match="no canonical form"):
-        run_key(transfer_run, (method, 3, 0), {"env_kwargs": {"a": object()}})
-
-
-def test_run_jobs_runs_only_the_runs_missing_from_the_cache(tmp_path, called_seeds):
-    """A killed reproduction resumes: the cached runs are loaded, the others run, all in the jobs' order."""
-    tasks_and_seeds = [(2, 0), (5, 1), (11, 2), (17, 3)]
-    cached = run_jobs(counted_transfer_run, small_jobs(tasks_and_seeds[::2]), cache=tmp_path)
-    files = {path: path.stat() for path in tmp_path.glob("*.pkl")}
-
-    records = run_jobs(counted_transfer_run, small_jobs(tasks_and_seeds), workers=2, cache=tmp_path)
-    assert called_seeds()[:2] == [0, 2]
-    assert sorted(called_seeds()[2:]) == [1, 3]
-    assert [int(record.tasks[0]) for record in records] == [task for task, _ in tasks_and_seeds]
-    assert_same_records(records[::2], cached)
-    assert all(path.stat().st_mtime_ns == stat.st_mtime_ns for path, stat in files.items())
-    assert len(list(tmp_path.glob("*.pkl"))) == 4
 
 
 @pytest.fixture
@@ -280,16 +143,6 @@ def test_reproduce_rejects_bad_arguments(arguments, message, capsys):
         main(arguments)
     assert error.value.code == 2
     assert message in capsys.readouterr().err
-
-
-def test_reproduce_rejects_an_unwritable_output_directory(tmp_path, capsys):
-    """A file where the directory should be: the error names the directory before any run starts."""
-    blocker = tmp_path / "file"
-    blocker.write_text("")
-    with pytest.raises(SystemExit) as error:
-        main(["reproduce", "fig5", "--out", str(blocker / "results")])
-    assert error.value.code == 2
-    assert "cannot create the output directory" in capsys.readouterr().err
 
 
 def test_results_table_has_a_row_per_method_with_standard_errors():

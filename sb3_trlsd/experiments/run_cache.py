@@ -7,8 +7,11 @@ function's qualified name, a canonical form of its arguments and a fingerprint o
 executes: the modules of ``sb3_trlsd`` and ``sb3_trlsd_envs`` that the function's module imports,
 directly or not (``code_fingerprint``). An edit of any of them makes the run a miss (it may change the
 results); an edit of a module the run does not import (a figure's plotting and tables, the command line)
-does not, nor does anything else (installed dependencies are not part of the key). The runs are pickles:
-a cache directory must be as trusted as the code.
+does not, nor does anything else (installed dependencies are not part of the key).
+
+A kept run is an ``.npz`` file of arrays and JSON, read without unpickling or importing anything: a cache
+directory from elsewhere runs no code when read. What the cache trusts is that a file under a run's name
+holds that run's result: whoever can write the directory can change the numbers of a figure.
 """
 
 from __future__ import annotations
@@ -19,8 +22,8 @@ import functools
 import hashlib
 import importlib.util
 import inspect
+import json
 import os
-import pickle
 import sys
 from collections.abc import Callable, Mapping
 from pathlib import Path
@@ -28,17 +31,23 @@ from typing import Any
 
 import numpy as np
 
+from sb3_trlsd.data import load_npz_arrays
+
 __all__ = [
     "RunCache",
     "canonical_form",
     "code_fingerprint",
+    "decode",
+    "encode",
     "fingerprinted_modules",
     "imported_package_modules",
     "run_key",
 ]
 
-# The code a run's results depend on, besides dependencies.
+# The code a run's results depend on, besides dependencies (and the only classes a kept run may name).
 FINGERPRINTED_PACKAGES = ("sb3_trlsd", "sb3_trlsd_envs")
+RESULT_ENTRY = "result"  # the array of a kept run's .npz that holds its JSON
+FORMAT_VERSION = 1
 
 
 def imported_package_modules(path: Path) -> set[str]:
@@ -166,9 +175,104 @@ def run_key(function: Callable[..., Any], args: tuple, kwargs: dict[str, Any]) -
     return hashlib.sha256(repr(description).encode()).hexdigest()
 
 
+def kept_dataclass(name: str) -> type:
+    """
+    The dataclass a kept run names as ``module:qualname``: one of ``FINGERPRINTED_PACKAGES``, from a module
+    already imported (reading a kept run imports nothing, so it runs no code but the dataclass's own).
+
+    :param name: ``module:qualname``
+    :return: the class
+    :raises ValueError: if ``name`` is not such a dataclass
+    """
+    module_name, _, qualname = name.partition(":")
+    found: Any = sys.modules.get(module_name)
+    if module_name.split(".")[0] not in FINGERPRINTED_PACKAGES or found is None:
+        raise ValueError(
+            f"{name!r} is not a class of an imported module of {', '.join(FINGERPRINTED_PACKAGES)}"
+        )
+    for part in qualname.split("."):
+        found = getattr(found, part, None)
+    if not (isinstance(found, type) and dataclasses.is_dataclass(found)):
+        raise ValueError(f"{name!r} is not a dataclass")
+    return found
+
+
+def encode(value: Any, arrays: dict[str, np.ndarray]) -> Any:
+    """
+    ``value`` as JSON values, its arrays moved to ``arrays`` (named ``array_<n>``) and replaced by their
+    names. A result may be made of None, booleans, numbers, strings, numpy arrays that hold no Python
+    objects, lists, tuples, dicts with string keys and dataclasses of ``FINGERPRINTED_PACKAGES`` holding
+    those; every container but a scalar is tagged (``{"list": [...]}``), so that ``decode`` rebuilds it.
+
+    :param value: a run's result
+    :param arrays: where its arrays go (filled in)
+    :return: the JSON form
+    :raises TypeError: for anything else
+    """
+    if value is None or isinstance(value, (bool, int, float, str)):
+        return value
+    if isinstance(value, np.generic):
+        return encode(value.item(), arrays)
+    if isinstance(value, np.ndarray):
+        if value.dtype.hasobject:
+            raise TypeError("a kept run cannot hold an array of Python objects")
+        name = f"array_{len(arrays)}"
+        arrays[name] = value
+        return {"array": name}
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        name = f"{type(value).__module__}:{type(value).__qualname__}"
+        try:
+            kept_dataclass(name)
+        except ValueError as error:
+            raise TypeError(f"a kept run cannot hold this dataclass: {error}") from error
+        fields = {
+            field.name: encode(getattr(value, field.name), arrays) for field in dataclasses.fields(value)
+        }
+        return {"dataclass": [name, fields]}
+    if isinstance(value, (list, tuple)):
+        return {"tuple" if isinstance(value, tuple) else "list": [encode(item, arrays) for item in value]}
+    if isinstance(value, dict) and all(isinstance(key, str) for key in value):
+        return {"dict": {key: encode(item, arrays) for key, item in value.items()}}
+    raise TypeError(f"a kept run cannot hold a {type(value).__name__}: {value!r}")
+
+
+def decode(value: Any, arrays: Mapping[str, np.ndarray]) -> Any:
+    """
+    The result ``encode`` turned into ``value``.
+
+    :param value: the JSON form
+    :param arrays: the arrays it names
+    :return: the result
+    :raises ValueError: if ``value`` is not a form ``encode`` writes (other errors may come from a damaged
+        form: ``RunCache.load`` reports them all)
+    """
+    if not isinstance(value, (dict, list)):
+        return value
+    if not isinstance(value, dict) or len(value) != 1:
+        raise ValueError(f"untagged entry {value!r}")
+    ((tag, content),) = value.items()
+    if tag == "array":
+        return arrays[content]
+    if tag in ("list", "tuple"):
+        items = [decode(item, arrays) for item in content]
+        return items if tag == "list" else tuple(items)
+    if tag == "dict":
+        return {key: decode(item, arrays) for key, item in content.items()}
+    if tag == "dataclass":
+        name, fields = content
+        cls = kept_dataclass(name)
+        expected = sorted(field.name for field in dataclasses.fields(cls))
+        if sorted(fields) != expected:
+            raise ValueError(f"{name} has the fields {expected}, the kept run {sorted(fields)}")
+        return cls(**{key: decode(item, arrays) for key, item in fields.items()})
+    raise ValueError(f"unknown entry {tag!r}")
+
+
 class RunCache:
     """
-    A directory of finished runs, one pickle per run, named after the function and the run's key.
+    A directory of finished runs, one ``.npz`` file per run, named after the function and the run's key:
+    the run's arrays, and its structure and scalars as JSON (``encode``). Reading one unpickles nothing
+    and imports nothing.
 
     A run is written to a temporary file of the same directory, then renamed over its name: a process
     killed while writing leaves no half file (at worst a hidden ``.tmp`` file, never read).
@@ -187,27 +291,41 @@ class RunCache:
         :param kwargs: its keyword arguments
         :return: the file that holds (or will hold) the result of ``function(*args, **kwargs)``
         """
-        return self.directory / f"{function.__name__}-{run_key(function, args, kwargs)}.pkl"
+        return self.directory / f"{function.__name__}-{run_key(function, args, kwargs)}.npz"
 
     def load(self, path: Path) -> Any:
         """
         :param path: a file of ``path_of`` that exists
         :return: the result stored there
+        :raises ValueError: naming the file, if it cannot be read or is not a run ``store`` wrote
         """
-        with open(path, "rb") as file:
-            return pickle.load(file)
+        try:
+            arrays = load_npz_arrays(path)
+        except OSError as error:
+            raise ValueError(f"the kept run {str(path)!r} cannot be read: {error.strerror}") from error
+        try:
+            structure = json.loads(arrays.pop(RESULT_ENTRY).item())
+            if structure["format"] != FORMAT_VERSION:
+                raise ValueError(f"format {structure['format']!r}, this code reads {FORMAT_VERSION}")
+            return decode(structure["result"], arrays)
+        except (AttributeError, KeyError, TypeError, ValueError) as error:
+            raise ValueError(
+                f"{str(path)!r} is not a kept run this code can read ({type(error).__name__}: {error})"
+            ) from error
 
     def store(self, path: Path, result: Any) -> None:
         """
         Write ``result`` to ``path`` atomically.
 
         :param path: its file, from ``path_of``
-        :param result: the run's result (picklable)
+        :param result: the run's result (see ``encode`` for what it may hold)
         """
+        arrays: dict[str, np.ndarray] = {}
+        structure = json.dumps({"format": FORMAT_VERSION, "result": encode(result, arrays)})
         temporary_path = path.with_name(f".{path.name}.{os.getpid()}.tmp")
         try:
             with open(temporary_path, "wb") as file:
-                pickle.dump(result, file, protocol=pickle.HIGHEST_PROTOCOL)
+                np.savez(file, **{RESULT_ENTRY: np.array(structure)}, **arrays)
                 file.flush()
                 os.fsync(file.fileno())
             os.replace(temporary_path, path)

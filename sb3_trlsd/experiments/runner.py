@@ -5,30 +5,28 @@ A run drives a ``TRLSD`` model through ``TRLSD.act`` and ``TRLSD.add_online_tran
 over the env, so it uses the algorithm's own buffer, reward heads, trigger and FQI solver, and takes the
 same actions as ``model.learn`` with the same seed (``tests/test_experiments.py`` checks it), without
 SB3's rollout machinery (vectorised env, monitor, logger, torch predict), which costs as much as the
-refits on the maze. Runs are independent: each job has its own seed, and ``run_jobs`` spreads them over
-processes and, given a cache directory, keeps the finished ones there to resume a killed reproduction
-(``sb3_trlsd.experiments.run_cache``).
+refits on the maze. Runs are independent: each job has its own seed, and ``run_jobs``
+(``sb3_trlsd.experiments.jobs``) spreads them over processes and, given a cache directory, keeps the
+finished ones there to resume a killed reproduction (``sb3_trlsd.experiments.run_cache``).
 """
 
 from __future__ import annotations
 
 import itertools
 import time
-from collections.abc import Callable, Iterable, Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from collections.abc import Iterable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
-from threadpoolctl import threadpool_limits
-from tqdm.auto import tqdm
 
 from sb3_trlsd.data import collect_transitions
-from sb3_trlsd.experiments.run_cache import RunCache
+from sb3_trlsd.experiments.jobs import run_jobs
 from sb3_trlsd.trlsd import TRLSD
 from sb3_trlsd_envs import MAZE_ID, expected_reward
+from sb3_trlsd_envs.dynamics import MAZE_SIZE
 from sb3_trlsd_envs.pictures import greedy_policy_grid, state_grid
 
 __all__ = [
@@ -45,8 +43,6 @@ SOURCE_TRANSITIONS = 25_000  # paper, section 4: random transitions before the t
 ONLINE_TRANSITIONS = 1_000  # paper, section 4: online transitions on the target task
 SNAPSHOT_GRID = 50  # R^ of a snapshot is drawn on a SNAPSHOT_GRID x SNAPSHOT_GRID grid of states
 SNAPSHOT_TRAIL = 50  # a snapshot's trajectory: the transitions since the previous one, at most this many
-Job = TypeVar("Job")
-Result = TypeVar("Result")
 
 
 @dataclass(frozen=True)
@@ -57,7 +53,8 @@ class Method:
     :param label: name in the plots and files
     :param reward_head: ``"ridge"`` (continuous), ``"tabular"`` (discrete), ``"corners"`` or ``"known"``
     :param kappa: optimism (0: non-optimistic)
-    :param sigma: similarity width of the ridge head's W (eq. 8)
+    :param sigma: similarity width of the ridge head's W (eq. 8), in the paper's units: maze units for eq. 6
+        (TRLSD takes a fraction of the state box: sigma / 5), feature space for eq. 7
     :param similarity: ``"state"`` (eq. 6) or ``"features"`` (eq. 7)
     :param update_ratio: refit when the CI at an encountered state has been divided by this
     :param transfer: start from the random source transitions (False: "no transfer")
@@ -82,7 +79,7 @@ class Method:
             env,
             reward_head=self.reward_head,
             kappa=self.kappa,
-            sigma=self.sigma,
+            sigma=self.sigma / MAZE_SIZE if self.similarity == "state" else self.sigma,
             similarity=self.similarity,
             update_ratio=self.update_ratio,
             seed=seed,
@@ -254,74 +251,6 @@ def multitask_run(method: Method, seed: int, n_turns: int = 20, episode_steps: i
     )
     model = method.make_model(env, seed)
     return run_online(model, env, n_turns * 25 * episode_steps, seed)
-
-
-def _call(job: tuple[Callable[..., Result], tuple, dict]) -> Result:
-    function, args, kwargs = job
-    # The products of a run are small: BLAS threads only fight the other workers for the cores.
-    with threadpool_limits(1):
-        return function(*args, **kwargs)
-
-
-def run_jobs(
-    function: Callable[..., Result],
-    jobs: Sequence[tuple[tuple, dict]],
-    workers: int = 1,
-    description: str = "runs",
-    cache: Path | None = None,
-) -> list[Result]:
-    """
-    ``function(*args, **kwargs)`` for each job, in order, over ``workers`` processes, with a progress bar.
-
-    With a ``cache``, the jobs already found there are loaded instead of run (the progress bar starts at
-    their number), and each other job is written there as soon as it finishes: a killed reproduction
-    resumes where it stopped. A job is found when ``function`` was called with the same arguments by the
-    same code (see ``sb3_trlsd.experiments.run_cache``): ``function`` must be a pure function of them.
-
-    :param function: a module-level function (picklable)
-    :param jobs: ``(args, kwargs)`` of each call
-    :param workers: processes (1: in this process)
-    :param description: label of the progress bar
-    :param cache: directory of finished runs (created if needed); None: run every job, keep nothing
-    :return: the results in the order of ``jobs``
-    """
-    run_cache = None if cache is None else RunCache(cache)
-    paths = [None if run_cache is None else run_cache.path_of(function, *job) for job in jobs]
-    results: list[Any] = [None] * len(jobs)
-    missing: list[int] = []  # indices of the jobs to run
-    for index, path in enumerate(paths):
-        if path is not None and path.exists():
-            results[index] = run_cache.load(path)
-        else:
-            missing.append(index)
-    # No bar when the output is not a terminal (a log file would fill with its redraws).
-    bar = tqdm(
-        total=len(jobs),
-        initial=len(jobs) - len(missing),
-        desc=description,
-        unit="run",
-        leave=False,
-        disable=None,
-    )
-
-    def finish(index: int, result: Result) -> None:
-        results[index] = result
-        if run_cache is not None:
-            run_cache.store(paths[index], result)
-        bar.update()
-
-    try:
-        if workers <= 1:
-            for index in missing:
-                finish(index, _call((function, *jobs[index])))
-        else:
-            with ProcessPoolExecutor(workers) as pool:
-                futures = {pool.submit(_call, (function, *jobs[index])): index for index in missing}
-                for future in as_completed(futures):
-                    finish(futures[future], future.result())
-    finally:
-        bar.close()
-    return results
 
 
 def transfer_runs(
