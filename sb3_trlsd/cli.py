@@ -3,9 +3,14 @@
 from __future__ import annotations
 
 import argparse
+import multiprocessing
 import os
+import signal
 import sys
-from collections.abc import Sequence
+import tempfile
+import warnings
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager, suppress
 from pathlib import Path
 
 import gymnasium as gym
@@ -17,6 +22,9 @@ from sb3_trlsd.experiments import FIGURES
 __all__ = ["main"]
 
 ZOO_SCRIPTS = ("train", "enjoy")  # subcommands passed on, unchanged, to the RL Zoo
+# What ``render`` writes, from its file's extension (formats matplotlib's imsave writes, tested).
+IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".tiff", ".webp", ".pdf", ".svg", ".eps")
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
 
 def parse_task(text: str) -> int | tuple[int, int]:
@@ -34,8 +42,32 @@ def parse_task(text: str) -> int | tuple[int, int]:
     raise argparse.ArgumentTypeError(f"a task is 'i,j' or an index, got {text!r}")
 
 
+def usable_directory(path: str | os.PathLike, option: str) -> Path:
+    """
+    ``path``, made if needed, once a file could be created in it.
+
+    :param path: a directory
+    :param option: what it comes from, for the message (e.g. ``"--out"``)
+    :return: the directory
+    :raises ValueError: if it cannot be made or written to
+    """
+    try:
+        os.makedirs(path, exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=path):
+            pass
+    except OSError as error:
+        reason = "a file has that name" if os.path.isfile(path) else error.strerror
+        raise ValueError(
+            f"{option}: cannot make or write to the directory {os.fspath(path)!r} ({reason})"
+        ) from None
+    return Path(path)
+
+
 def render_command(args: argparse.Namespace) -> int:
-    """Render the maze with one random trajectory of the given task to a PNG."""
+    """Render the maze with one random trajectory of the given task to an image file."""
+    if Path(args.out).suffix.lower() not in IMAGE_EXTENSIONS:
+        raise ValueError(f"--out {args.out!r}: the file must end with one of {', '.join(IMAGE_EXTENSIONS)}")
+    usable_directory(os.path.dirname(os.path.abspath(args.out)), f"--out {args.out!r}")
     env = gym.make(sb3_trlsd_envs.MAZE_ID, task=args.task, render_mode="rgb_array", termination_prob=0.0)
     env.action_space.seed(args.seed)
     env.reset(seed=args.seed)
@@ -43,8 +75,6 @@ def render_command(args: argparse.Namespace) -> int:
         env.step(env.action_space.sample())
     image = env.render()
     env.close()
-    directory = os.path.dirname(os.path.abspath(args.out))
-    os.makedirs(directory, exist_ok=True)
     from matplotlib.image import imsave
 
     imsave(args.out, np.asarray(image))
@@ -63,30 +93,80 @@ def positive_int(text: str) -> int:
     return value
 
 
-def writable_directory(text: str) -> str:
-    """A directory that exists or can be created, and can be written to."""
+@contextmanager
+def stopped_by_signals() -> Iterator[list[int]]:
+    """
+    Within the block, the first SIGINT or SIGTERM raises ``KeyboardInterrupt`` (on which joblib stops its
+    workers and the command says what it kept); a second one kills the worker processes and exits at once.
+
+    :return: (as the ``with`` target) the signals received, filled in by the handler
+    """
+    received: list[int] = []
+
+    def interrupt(signum: int, frame: object) -> None:
+        received.append(signum)
+        if len(received) == 1:
+            raise KeyboardInterrupt
+        for child in multiprocessing.active_children():  # loky's workers are multiprocessing processes
+            with suppress(ProcessLookupError):
+                os.kill(child.pid, signal.SIGKILL)
+        os.write(sys.stderr.fileno(), b"sb3-trlsd: interrupted again, stopped at once\n")
+        os._exit(128 + signum)
+
+    previous = {number: signal.signal(number, interrupt) for number in STOP_SIGNALS}
     try:
-        os.makedirs(text, exist_ok=True)
-    except OSError as error:
-        raise argparse.ArgumentTypeError(f"cannot create the output directory {text!r}: {error}") from error
-    if not os.access(text, os.W_OK | os.X_OK):
-        raise argparse.ArgumentTypeError(f"cannot write to the output directory {text!r}")
-    return text
+        yield received
+    finally:
+        for number, handler in previous.items():
+            signal.signal(number, handler)
 
 
-def reproduce_command(args: argparse.Namespace) -> int:
-    """Run the experiments of one figure (or all) and write their CSV, PNG and JSON files."""
+def interruption_message(interrupt: KeyboardInterrupt, figure: str, cache: Path | None) -> str:
+    """What an interrupted ``reproduce`` kept, and how to resume it."""
+    from sb3_trlsd.experiments.jobs import RunsInterrupted
+
+    if cache is None:
+        return "interrupted: no runs kept (--no-cache), a rerun starts again from the first one"
+    if isinstance(interrupt, RunsInterrupted):
+        kept = f"{interrupt.kept} of {interrupt.total} runs of {figure}"
+    else:
+        kept = "the finished runs"
+    return f"interrupted: {kept} kept in {cache}; run the same command again to resume"
+
+
+def print_warning(message: Warning | str, *args: object, **kwargs: object) -> None:
+    """A warning on one line of stderr (``warnings.showwarning`` adds its file and source line)."""
+    print(f"sb3-trlsd reproduce: warning: {message}", file=sys.stderr)
+
+
+def reproduce_figure(figure: str, out: Path, cache: Path | None, args: argparse.Namespace) -> None:
+    """Run one figure's experiments, write its files and print its table."""
     from sb3_trlsd.experiments import reproduce
     from sb3_trlsd.experiments.reporting import results_table
 
+    data = reproduce(figure, out, runs=args.runs, seed=args.seed, workers=args.workers, cache=cache)
+    files = ", ".join(str(out.absolute() / f"{figure}.{ext}") for ext in ("png", "csv", "json"))
+    print(f"{figure} done in {data['wall_time_seconds']:.0f} s: {files}\n\n{results_table(data)}\n")
+
+
+def reproduce_command(args: argparse.Namespace) -> int:
+    """
+    Run the experiments of one figure (or all) and write their CSV, PNG and JSON files.
+
+    :return: 0, or 128 + the signal's number when SIGINT or SIGTERM stopped it
+    """
+    out = usable_directory(args.out, "--out")
+    cache = None if args.no_cache else usable_directory(args.cache or out / "runs", "--cache")
     figures = list(FIGURES) if args.figure == "all" else [args.figure]
-    cache = None if args.no_cache else Path(args.cache or os.path.join(args.out, "runs"))
-    for figure in figures:
-        data = reproduce(figure, args.out, runs=args.runs, seed=args.seed, workers=args.workers, cache=cache)
-        files = ", ".join(
-            os.path.join(os.path.abspath(args.out), f"{figure}.{ext}") for ext in ("png", "csv", "json")
-        )
-        print(f"{figure} done in {data['wall_time_seconds']:.0f} s: {files}\n\n{results_table(data)}\n")
+    figure = figures[0]
+    with stopped_by_signals() as received, warnings.catch_warnings():
+        warnings.showwarning = print_warning
+        try:
+            for figure in figures:
+                reproduce_figure(figure, out, cache, args)
+        except KeyboardInterrupt as interrupt:
+            print(f"sb3-trlsd reproduce: {interruption_message(interrupt, figure, cache)}", file=sys.stderr)
+            return 128 + (received[0] if received else signal.SIGINT)
     return 0
 
 
@@ -96,8 +176,12 @@ def build_parser() -> argparse.ArgumentParser:
         description="Transfer RL with Shared Dynamics (Laroche & Barlier, AAAI 2017) on Stable-Baselines3.",
     )
     commands = parser.add_subparsers(dest="command", required=True)
-    render = commands.add_parser("render", help="draw the maze with a random trajectory to a PNG")
-    render.add_argument("--out", default="results/maze.png", help="PNG file to write (default: %(default)s)")
+    render = commands.add_parser("render", help="draw the maze with a random trajectory to an image file")
+    render.add_argument(
+        "--out",
+        default="results/maze.png",
+        help=f"image to write, {', '.join(IMAGE_EXTENSIONS)} (default: %(default)s)",
+    )
     render.add_argument("--task", type=parse_task, default=(1, 5), help="target cell 'i,j' drawn in green")
     render.add_argument("--steps", type=int, default=30, help="random steps of the trajectory drawn in blue")
     render.add_argument("--seed", type=int, default=0, help="seed of the env and of the random policy")
@@ -112,9 +196,7 @@ def build_parser() -> argparse.ArgumentParser:
     reproduce.add_argument(
         "--runs", type=positive_int, default=None, help="runs per method (default: the paper's)"
     )
-    reproduce.add_argument(
-        "--out", type=writable_directory, default="results", help="output directory (default: %(default)s)"
-    )
+    reproduce.add_argument("--out", default="results", help="output directory (default: %(default)s)")
     reproduce.add_argument("--seed", type=int, default=0, help="seed of the first run; run r uses seed + r")
     reproduce.add_argument(
         "--workers", type=positive_int, default=os.cpu_count() or 1, help="processes (default: %(default)s)"
@@ -122,7 +204,6 @@ def build_parser() -> argparse.ArgumentParser:
     run_cache = reproduce.add_mutually_exclusive_group()
     run_cache.add_argument(
         "--cache",
-        type=writable_directory,
         default=None,
         metavar="DIR",
         help="directory of finished runs (default: OUT/runs; a killed reproduction resumes from there): "
@@ -151,6 +232,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         return args.run(args)
-    except ValueError as error:
+    except ValueError as error:  # bad input, found before anything ran
         print(f"sb3-trlsd {args.command}: error: {error}", file=sys.stderr)
         return 2
+    except OSError as error:  # e.g. a disk full while writing
+        print(f"sb3-trlsd {args.command}: error: {error}", file=sys.stderr)
+        return 1
