@@ -5,7 +5,7 @@ The Zoo has no plugin mechanism for algorithms: its ``--algo`` choices are the k
 ``rl_zoo3.utils.ALGOS``, read before ``--gym-packages`` is imported. ``register_with_zoo`` adds ``trlsd``
 to that table (and to the hyperparameter samplers of ``-optimize``), the maze is registered by importing
 this package, and ``run_zoo`` then hands the user's arguments, unchanged, to the Zoo's own script (the
-pattern the Zoo documents for SBX).
+pattern the Zoo documents for SBX), with one fix: ``train`` evaluates on the tasks it trains on.
 """
 
 from __future__ import annotations
@@ -16,7 +16,14 @@ from typing import Any
 
 from sb3_trlsd.trlsd import TRLSD
 
-__all__ = ["ZOO_MISSING", "convert_trlsd_params", "register_with_zoo", "run_zoo", "sample_trlsd_params"]
+__all__ = [
+    "ZOO_MISSING",
+    "convert_trlsd_params",
+    "evaluating_on_the_training_tasks",
+    "register_with_zoo",
+    "run_zoo",
+    "sample_trlsd_params",
+]
 
 ZOO_MISSING = "the RL Zoo is not installed: pip install 'sb3-trlsd[zoo]' (or pip install rl_zoo3)"
 
@@ -61,29 +68,74 @@ def register_with_zoo() -> None:
     hyperparams_opt.HYPERPARAMS_CONVERTER["trlsd"] = convert_trlsd_params
 
 
+def evaluating_on_the_training_tasks(manager_class: type) -> type:
+    """
+    A subclass of the Zoo's ``ExperimentManager`` whose evaluation env, without ``--eval-env-kwargs``, is
+    made with the env kwargs of training, the config's included.
+
+    The Zoo means to do so (without ``--eval-env-kwargs``, ``eval_env_kwargs`` is the same dict as
+    ``env_kwargs``) but replaces ``env_kwargs`` by the config's after that: its evaluation then ran on the
+    env's default task (task 0 on the maze) while the model learnt the config's, and every ``-optimize``
+    trial got the same score.
+
+    :param manager_class: ``rl_zoo3.exp_manager.ExperimentManager``
+    :return: the subclass
+    """
+
+    class ExperimentManager(manager_class):
+        def __init__(self, *args: Any, **kwargs: Any) -> None:
+            super().__init__(*args, **kwargs)
+            self.evaluate_on_training_kwargs = self.eval_env_kwargs is self.env_kwargs
+
+        def create_envs(self, n_envs: int, eval_env: bool = False, no_log: bool = False) -> Any:
+            if eval_env and self.evaluate_on_training_kwargs:
+                self.eval_env_kwargs = self.env_kwargs
+            return super().create_envs(n_envs, eval_env=eval_env, no_log=no_log)
+
+    return ExperimentManager
+
+
 def run_zoo(script: str, argv: Sequence[str]) -> int:
     """
-    Run the Zoo's ``train`` or ``enjoy`` with ``argv`` as its command line, ``trlsd`` registered.
+    Run the Zoo's ``train`` or ``enjoy`` with ``argv`` as its command line, ``trlsd`` registered (and
+    ``train``'s evaluation on the tasks of training, see ``evaluating_on_the_training_tasks``).
 
     :param script: ``"train"`` or ``"enjoy"``
     :param argv: the user's arguments, passed on unchanged
-    :return: exit status (1 with a one-line instruction when the Zoo is not installed)
+    :return: exit status: 1 with a one-line instruction when the Zoo is not installed, 2 with a one-line
+        message when the Zoo or TRLSD rejects an argument (a ``ValueError``: e.g. an env the config lacks)
     """
     try:
         register_with_zoo()
     except ImportError:
         print(f"sb3-trlsd {script}: {ZOO_MISSING}", file=sys.stderr)
         return 1
-    if script == "train":
-        from rl_zoo3.train import train as zoo_script
-    elif script == "enjoy":
-        from rl_zoo3.enjoy import enjoy as zoo_script
-    else:
+    if script not in ("train", "enjoy"):
         raise ValueError(f"script must be 'train' or 'enjoy', got {script!r}")
     saved_argv = sys.argv
     sys.argv = [f"sb3-trlsd {script}", *argv]
     try:
-        zoo_script()
+        if script == "train":
+            zoo_train()
+        else:
+            from rl_zoo3.enjoy import enjoy
+
+            enjoy()
+    except ValueError as error:
+        print(f"sb3-trlsd {script}: error: {' '.join(str(error).split())}", file=sys.stderr)
+        return 2
     finally:
         sys.argv = saved_argv
     return 0
+
+
+def zoo_train() -> None:
+    """The Zoo's ``train`` on ``sys.argv``, its ``ExperimentManager`` evaluating on the training tasks."""
+    import rl_zoo3.train
+
+    manager_class = rl_zoo3.train.ExperimentManager
+    rl_zoo3.train.ExperimentManager = evaluating_on_the_training_tasks(manager_class)
+    try:
+        rl_zoo3.train.train()
+    finally:
+        rl_zoo3.train.ExperimentManager = manager_class

@@ -71,18 +71,66 @@ def test_train_then_enjoy_each_config(config, tmp_path, capsys):
     assert "Loading" in capsys.readouterr().out
 
 
-def test_optimize_shares_a_sqlite_study(tmp_path):
+@pytest.fixture
+def env_kwargs_made(monkeypatch) -> list[tuple[bool, dict]]:
+    """``(eval_env, kwargs)`` of every env the Zoo's ``ExperimentManager`` makes, in order."""
+    from rl_zoo3.exp_manager import ExperimentManager
+
+    made = []
+    create_envs = ExperimentManager.create_envs
+
+    def recording(self, n_envs, eval_env=False, no_log=False):
+        made.append((eval_env, dict(self.eval_env_kwargs if eval_env else self.env_kwargs)))
+        return create_envs(self, n_envs, eval_env=eval_env, no_log=no_log)
+
+    monkeypatch.setattr(ExperimentManager, "create_envs", recording)
+    return made
+
+
+def test_optimize_scores_each_trial_on_the_task_it_learns(tmp_path, env_kwargs_made):
+    """
+    Before, the Zoo evaluated on the env's default task 0 while the config trains on tau_15: the models,
+    never fitted there, took action 0 everywhere and every trial got the same score.
+    """
     storage = f"sqlite:///{tmp_path / 'study.db'}"
     arguments = ["train", "--algo", "trlsd", "--env", MAZE_ID, "-conf", str(CONFIG_DIR / "continuous.yml")]
-    arguments += ["-n", "40", "-f", str(tmp_path / "logs"), "-optimize", "--n-trials", "2", "--n-jobs", "1"]
+    arguments += ["-n", "100", "-f", str(tmp_path / "logs"), "-optimize", "--n-trials", "3", "--n-jobs", "1"]
     arguments += ["--sampler", "random", "--pruner", "none", "--storage", storage, "--study-name", "maze"]
-    arguments += ["--n-evaluations", "1", "--eval-episodes", "1", "--no-optim-plots"]
-    arguments += ["-params", "source_transitions:300", "--seed", "0"]
+    arguments += ["--n-evaluations", "1", "--eval-episodes", "2", "--no-optim-plots"]
+    arguments += ["-params", "source_transitions:1000", "--seed", "0"]
     assert main(arguments) == 0
     study = optuna.load_study(study_name="maze", storage=storage)
     trials = [trial for trial in study.trials if trial.state == optuna.trial.TrialState.COMPLETE]
-    assert len(trials) == 2
+    assert len(trials) == 3
     assert set(trials[0].params) == {"kappa", "sigma", "update_ratio", "gamma"}
+    assert len({trial.value for trial in trials}) == 3
+    assert {str(kwargs) for _, kwargs in env_kwargs_made} == {"{'task': [1, 5]}"}
+    assert sum(eval_env for eval_env, _ in env_kwargs_made) == 3  # one evaluation env per trial
+
+
+@pytest.mark.parametrize(
+    ("extra", "evaluated_on"),
+    [([], {"task": [1, 5]}), (["--eval-env-kwargs", "task:(2,3)"], {"task": (2, 3)})],
+    ids=["the config's task", "--eval-env-kwargs"],
+)
+def test_train_evaluates_on_the_config_task_unless_told_otherwise(
+    tmp_path, env_kwargs_made, extra, evaluated_on
+):
+    """Plain ``train`` evaluates (``--eval-freq``) on the task it trains on, or where the user says."""
+    arguments = ["train", "--algo", "trlsd", "--env", MAZE_ID, "-conf", str(CONFIG_DIR / "continuous.yml")]
+    arguments += ["-n", "40", "-f", str(tmp_path / "logs"), "--eval-freq", "20", "--eval-episodes", "1"]
+    assert main([*arguments, "-params", "source_transitions:300", "--seed", "0", *extra]) == 0
+    assert [kwargs for eval_env, kwargs in env_kwargs_made if not eval_env] == [{"task": [1, 5]}]
+    assert [kwargs for eval_env, kwargs in env_kwargs_made if eval_env] == [evaluated_on]
+
+
+def test_an_env_the_config_lacks_is_one_line(capsys):
+    """Before, the Zoo's ValueError came out as a traceback."""
+    config = str(CONFIG_DIR / "continuous.yml")
+    assert main(["train", "--algo", "trlsd", "--env", "CartPole-v1", "-conf", config]) == 2
+    error = capsys.readouterr().err
+    assert error.count("\n") == 1 and "Traceback" not in error
+    assert f"Hyperparameters not found for trlsd-CartPole-v1 in {config}" in error
 
 
 def test_without_the_zoo_train_says_how_to_install_it(monkeypatch, capsys):
