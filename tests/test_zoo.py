@@ -10,6 +10,7 @@ from tensorboard.backend.event_processing.event_file_loader import EventFileLoad
 from sb3_trlsd import TRLSD
 from sb3_trlsd.cli import main
 from sb3_trlsd_envs import MAZE_ID
+from tests.test_cli import assert_one_line_error
 
 optuna = pytest.importorskip("optuna")
 pytest.importorskip("rl_zoo3")
@@ -128,9 +129,7 @@ def test_an_env_the_config_lacks_is_one_line(capsys):
     """Before, the Zoo's ValueError came out as a traceback."""
     config = str(CONFIG_DIR / "continuous.yml")
     assert main(["train", "--algo", "trlsd", "--env", "CartPole-v1", "-conf", config]) == 2
-    error = capsys.readouterr().err
-    assert error.count("\n") == 1 and "Traceback" not in error
-    assert f"Hyperparameters not found for trlsd-CartPole-v1 in {config}" in error
+    assert_one_line_error(capsys, f"Hyperparameters not found for trlsd-CartPole-v1 in {config}")
 
 
 def test_without_the_zoo_train_says_how_to_install_it(monkeypatch, capsys):
