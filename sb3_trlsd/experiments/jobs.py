@@ -50,12 +50,12 @@ def _finished(
     function: Callable[..., Result], jobs: Sequence[tuple[tuple, dict]], indices: list[int], workers: int
 ) -> Iterator[tuple[int, Result]]:
     """``(index, result)`` of the jobs ``indices`` as they finish, over ``workers`` processes."""
-    if workers <= 1:
+    if workers <= 1 or len(indices) <= 1:  # no process to start for one run
         for index in indices:
             yield _call(index, function, *jobs[index])
         return
     # One run per dispatch (batch_size=1) and 2 per worker queued at most: a finished run is kept at once.
-    parallel = Parallel(n_jobs=workers, return_as="generator_unordered", batch_size=1)
+    parallel = Parallel(n_jobs=workers, backend="loky", return_as="generator_unordered", batch_size=1)
     results = parallel(delayed(_call)(index, function, *jobs[index]) for index in indices)
     try:
         yield from results
@@ -85,7 +85,7 @@ def run_jobs(
 
     :param function: a module-level function (picklable)
     :param jobs: ``(args, kwargs)`` of each call
-    :param workers: processes (1: in this process)
+    :param workers: processes (1, or a single run to do: in this process)
     :param description: label of the progress bar
     :param cache: directory of finished runs (created if needed); None: run every job, keep nothing
     :return: the results in the order of ``jobs``
