@@ -31,7 +31,7 @@ from collections.abc import Callable
 import numpy as np
 
 from sb3_trlsd import TRLSD
-from sb3_trlsd.features import RBFGrid
+from sb3_trlsd.feature_maps import RBFGrid
 from sb3_trlsd.fqi import LinearFQISolver, bellman_targets, fit_linear_fqi, linear_q_values, return_bounds
 from sb3_trlsd.reward_heads import GridCells, RidgeRewardHead
 
@@ -98,7 +98,7 @@ def main() -> None:
 
     states, actions, next_states = synthetic_transitions(N_TRANSITIONS, rng)
     terminated = np.zeros(N_TRANSITIONS, bool)
-    grid = RBFGrid(low=(0, 0), high=(5, 5), n_per_dim=5, sigma=0.2)
+    grid = RBFGrid(low=(0, 0), high=(5, 5), n_per_dim=5, sigma=0.04)  # width 0.2 on the maze
     phi, next_phi = grid(states), grid(next_states)
     head = RidgeRewardHead(grid, kappa=0.1, sigma=0.2)
     target = states[-N_TARGET:]

@@ -6,7 +6,7 @@ Importing the package registers the maze, ``TRLSD/SharedDynamicsMaze-v0``.
 import sb3_trlsd_envs  # noqa: F401  (registers TRLSD/SharedDynamicsMaze-v0)
 from sb3_trlsd.buffers import SharedDynamicsReplayBuffer
 from sb3_trlsd.data import Transitions, collect_transitions
-from sb3_trlsd.features import RBFGrid
+from sb3_trlsd.feature_maps import FeatureMap, RandomFourierFeatures, RBFGrid
 from sb3_trlsd.policies import LinearPolicy, MlpPolicy
 from sb3_trlsd.reward_heads import (
     GridCells,
@@ -22,11 +22,13 @@ from sb3_trlsd.version import __version__
 
 __all__ = [
     "TRLSD",
+    "FeatureMap",
     "GridCells",
     "KnownRewardHead",
     "LinearPolicy",
     "MlpPolicy",
     "RBFGrid",
+    "RandomFourierFeatures",
     "RewardHead",
     "RidgeRewardHead",
     "SharedDynamicsReplayBuffer",

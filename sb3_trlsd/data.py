@@ -11,11 +11,16 @@ import os
 import zipfile
 import zlib
 from dataclasses import dataclass, fields
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
+from gymnasium.wrappers import OrderEnforcing, PassiveEnvChecker, RecordEpisodeStatistics, TimeLimit
+from stable_baselines3.common.monitor import Monitor
 from tqdm.auto import tqdm
+
+from sb3_trlsd.observations import split_observation, state_space_of
 
 __all__ = ["Transitions", "collect_transitions", "load_npz_arrays"]
 
@@ -162,14 +167,21 @@ def load_npz_arrays(path: str | os.PathLike) -> dict[str, np.ndarray]:
     return arrays
 
 
-def split_observation(obs: dict[str, np.ndarray] | np.ndarray) -> tuple[np.ndarray, int]:
+# Wrappers that pass observations, actions and rewards through unchanged: with only these around it, an env's
+# own vectorised sampler gives the transitions that stepping it would. Any other wrapper is stepped through.
+TRANSPARENT_WRAPPERS = (TimeLimit, OrderEnforcing, PassiveEnvChecker, RecordEpisodeStatistics, Monitor)
+
+
+def own_sampler(env: gym.Env) -> Any:
     """
-    The state and task of an observation: ``obs["state"], obs["task"]`` for a Dict observation, ``obs, 0``
-    for a plain Box one (a single task).
+    The env's ``random_transitions(n, seed, max_episode_steps)`` if it has one and no wrapper around it
+    changes what it observes or receives (an observation wrapper would be bypassed), else None.
     """
-    if isinstance(obs, dict):
-        return np.asarray(obs["state"]), int(obs["task"])
-    return np.asarray(obs), 0
+    while isinstance(env, gym.Wrapper):
+        if not isinstance(env, TRANSPARENT_WRAPPERS):
+            return None
+        env = env.env
+    return getattr(env, "random_transitions", None)
 
 
 def collect_transitions(
@@ -181,8 +193,9 @@ def collect_transitions(
     This is how the paper builds its source set Xi (section 4: 25,000 transitions, 2% termination,
     uniform reset); the rewards of the env's task are kept, ``TRLSD.load_transitions`` decides whether
     to use them. An env whose unwrapped object has a ``random_transitions(n, seed, max_episode_steps)``
-    method (the maze) samples them itself, all trajectories at once; any other env is stepped one
-    transition at a time.
+    method (the maze) samples them itself, all trajectories at once, unless a wrapper that may change what
+    it observes or receives is around it (see ``TRANSPARENT_WRAPPERS``); any other env is stepped one
+    transition at a time, through its wrappers.
 
     :param env: a Gymnasium env with a Discrete action space and a Box (or ``{"state", "task"}`` Dict)
         observation space
@@ -195,19 +208,20 @@ def collect_transitions(
         raise ValueError(f"n_transitions must be a positive integer, got {n_transitions}")
     if not isinstance(env.action_space, spaces.Discrete):
         raise ValueError(f"collect_transitions needs a Discrete action space, got {env.action_space}")
-    sampler = getattr(env.unwrapped, "random_transitions", None)
+    sampler = own_sampler(env)
     if sampler is not None:
         # The env steps all its random trajectories at once (e.g. the maze): same process, much faster.
         max_steps = env.spec.max_episode_steps if env.spec is not None else None
         return Transitions(**sampler(n_transitions, seed=seed, max_episode_steps=max_steps))
     env.action_space.seed(seed)
     obs, _ = env.reset(seed=seed)
-    state, task = split_observation(obs)
+    dim = state_space_of(env.observation_space).shape[0]
+    state, task = (value[0] for value in split_observation(obs, dim))
     columns: dict[str, list] = {field.name: [] for field in fields(Transitions)}
     for _ in tqdm(range(n_transitions), disable=not progress_bar, desc="collecting transitions"):
         action = env.action_space.sample()
         obs, reward, terminated, truncated, _ = env.step(action)
-        next_state, _ = split_observation(obs)
+        next_state = split_observation(obs, dim)[0][0]
         for name, value in (
             ("states", state),
             ("actions", action),
@@ -220,7 +234,7 @@ def collect_transitions(
             columns[name].append(value)
         if terminated or truncated:
             obs, _ = env.reset()
-        state, task = split_observation(obs)
+        state, task = (value[0] for value in split_observation(obs, dim))
     return Transitions(
         states=np.asarray(columns["states"], dtype=np.float64),
         actions=np.asarray(columns["actions"], dtype=np.int64),

@@ -21,8 +21,8 @@ from stable_baselines3.common.save_util import load_from_pkl
 from stable_baselines3.common.type_aliases import GymEnv
 
 from sb3_trlsd.buffers import SharedDynamicsReplayBuffer
+from sb3_trlsd.builders import known_reward_fn
 from sb3_trlsd.reward_heads import KnownRewardHead
-from sb3_trlsd.settings import known_reward_fn
 
 SelfSaves = TypeVar("SelfSaves", bound="SavesSharedBuffer")
 

@@ -19,7 +19,7 @@ from gymnasium import spaces
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
 
-from sb3_trlsd.features import RBFGrid
+from sb3_trlsd.feature_maps import FeatureMap
 from sb3_trlsd.fit_rows import FitRows, LinearFitRows, TransitionRows
 from sb3_trlsd.fqi import (
     DEFAULT_LINEAR_ITERATIONS,
@@ -127,8 +127,7 @@ class LinearPolicy(TaskQPolicy):
     :param action_space: a Discrete action space
     :param lr_schedule: unused (the fit is in closed form), kept for SB3's policy signature
     :param features: Phi, states (n, d) -> (n, k), with an ``n_features`` attribute: ``TRLSD`` passes the
-        ``RBFGrid`` it shares with its reward heads (set its size with ``TRLSD(rbf_per_dim=...,
-        rbf_sigma=...)``)
+        ``FeatureMap`` it shares with its reward heads (see ``TRLSD(feature_map=..., rbf_per_dim=...)``)
     :param fqi_ridge: Tikhonov regularisation of each per-action least-squares projection of eq. 4, which
         keeps it well posed where a feature has (almost) no samples
     :param fqi_dtype: precision of the features the Fitted-Q iterations read, ``"float32"`` (default: half
@@ -143,15 +142,15 @@ class LinearPolicy(TaskQPolicy):
         observation_space: spaces.Space,
         action_space: spaces.Space,
         lr_schedule: Schedule,
-        features: RBFGrid | Callable[[np.ndarray], np.ndarray] | None = None,
+        features: FeatureMap | Callable[[np.ndarray], np.ndarray] | None = None,
         fqi_ridge: float = DEFAULT_RIDGE,
         fqi_dtype: str = "float32",
     ):
         super().__init__(observation_space, action_space, lr_schedule)
         if features is None or not isinstance(getattr(features, "n_features", None), int):
             raise ValueError(
-                "LinearPolicy needs features (Phi with an n_features attribute, e.g. an RBFGrid); "
-                "TRLSD builds them from its rbf_per_dim and rbf_sigma"
+                "LinearPolicy needs features (Phi with an n_features attribute, a FeatureMap); "
+                "TRLSD builds them from its feature_map, rbf_per_dim and rbf_sigma"
             )
         self.features = features
         self.fqi_ridge = fqi_ridge
@@ -203,6 +202,8 @@ class MlpPolicy(TaskQPolicy):
     :param net_arch: hidden layer sizes
     :param epochs_per_iteration: regression epochs on the targets of each fitted iteration
     :param batch_size: minibatch size of the regression
+    :param state_bounds: ``(low, high)`` the states are rescaled by (None: the state Box's; TRLSD passes its
+        ``state_bounds`` or the Box's)
     """
 
     default_max_iterations = DEFAULT_MLP_ITERATIONS
@@ -215,14 +216,19 @@ class MlpPolicy(TaskQPolicy):
         net_arch: tuple[int, ...] | list[int] = (64, 64),
         epochs_per_iteration: int = 2,
         batch_size: int = 512,
+        state_bounds: tuple[np.ndarray, np.ndarray] | None = None,
     ):
         super().__init__(observation_space, action_space, lr_schedule)
         self.net_arch = tuple(net_arch)
         self.epochs_per_iteration = epochs_per_iteration
         self.batch_size = batch_size
-        low, high = self.state_space.low.astype(np.float64), self.state_space.high.astype(np.float64)
+        self.state_bounds = state_bounds
+        bounds = (self.state_space.low, self.state_space.high) if state_bounds is None else state_bounds
+        low, high = (np.asarray(bound, dtype=np.float64) for bound in bounds)
         if not np.all(np.isfinite(low)) or not np.all(np.isfinite(high)):
-            raise ValueError("MlpPolicy rescales states by the state Box, whose bounds must be finite")
+            raise ValueError(
+                "MlpPolicy rescales states by the state Box, whose bounds must be finite: give state_bounds"
+            )
         self.state_centre, self.state_half_width = (high + low) / 2, (high - low) / 2
         self.q_networks = th.nn.ModuleList(
             make_q_network(self.state_space.shape[0], self.n_actions, hidden=self.net_arch)
@@ -235,6 +241,7 @@ class MlpPolicy(TaskQPolicy):
             net_arch=self.net_arch,
             epochs_per_iteration=self.epochs_per_iteration,
             batch_size=self.batch_size,
+            state_bounds=self.state_bounds,
         )
         return data
 

@@ -1,8 +1,7 @@
-"""TRLSD's settings: checked at construction (naming the argument), and the reward heads they build."""
+"""TRLSD's settings: checked at construction, naming the argument, and listed for TensorBoard's HParams."""
 
 from __future__ import annotations
 
-import copy
 import math
 import os
 from typing import Any
@@ -10,22 +9,14 @@ from typing import Any
 import numpy as np
 from gymnasium import spaces
 
-from sb3_trlsd.features import RBFGrid
+from sb3_trlsd.feature_maps import FEATURE_MAPS, FeatureMap
 from sb3_trlsd.observations import state_space_of
-from sb3_trlsd.policies import LinearPolicy
-from sb3_trlsd.reward_heads import REWARD_HEAD_NAMES, SIMILARITIES, RewardFn, RewardHead, make_reward_head
+from sb3_trlsd.reward_heads import REWARD_HEAD_NAMES, SIMILARITIES, RewardHead
 
-__all__ = [
-    "check_arguments",
-    "hyperparameters_of",
-    "known_reward_fn",
-    "new_reward_head",
-    "resolve_policy",
-    "shared_features",
-]
+__all__ = ["check_arguments", "hyperparameters_of", "resolve_policy"]
 
 # Settings of the features Phi that belong to TRLSD (which shares Phi between the policy and the heads).
-FEATURE_SETTINGS = ("features", "rbf_per_dim", "rbf_sigma")
+FEATURE_SETTINGS = ("features", "rbf_per_dim", "rbf_sigma", "state_bounds")
 
 
 def _is_number(value: Any) -> bool:
@@ -61,8 +52,31 @@ def check_arguments(model: Any) -> None:
         _require(_is_number(value) and math.isfinite(value), name, "a finite number", value)
         return float(value)
 
+    def widths(name: str, meaning: str) -> None:
+        value = getattr(model, name)
+        array = np.asarray(value if value is not None else 1.0)
+        ok = array.dtype.kind in "fiu" and array.ndim <= 1 and array.size and np.all(np.isfinite(array))
+        _require(
+            bool(ok) and np.all(array > 0),
+            name,
+            f"None or a width > 0 (or one per dimension): {meaning}",
+            value,
+        )
+
     _require(finite("kappa") >= 0, "kappa", ">= 0 (0 is the non-optimistic method)", model.kappa)
-    _require(finite("sigma") > 0, "sigma", "> 0 (the width of the similarity)", model.sigma)
+    widths("sigma", "the similarity's, a fraction of the state box")
+    widths("rbf_sigma", "the features', a fraction of the state box")
+    if model.feature_map not in FEATURE_MAPS and not isinstance(model.feature_map, FeatureMap):
+        raise ValueError(
+            f"feature_map must be one of {list(FEATURE_MAPS)} or a FeatureMap, got {model.feature_map!r}"
+        )
+    fourier = model.fourier_features
+    _require(
+        fourier is None or (isinstance(fourier, (int, np.integer)) and fourier >= 1),
+        "fourier_features",
+        "None or an integer >= 1",
+        fourier,
+    )
     _require(
         finite("update_ratio") > 1,
         "update_ratio",
@@ -71,7 +85,6 @@ def check_arguments(model: Any) -> None:
     )
     _require(0 < finite("gamma") < 1, "gamma", "in (0, 1)", model.gamma)
     _require(finite("fqi_tol") >= 0, "fqi_tol", ">= 0 (a relative tolerance)", model.fqi_tol)
-    _require(finite("rbf_sigma") > 0, "rbf_sigma", "> 0 (the width of the RBF features)", model.rbf_sigma)
     _require(
         isinstance(model.rbf_per_dim, (int, np.integer)) and model.rbf_per_dim >= 1,
         "rbf_per_dim",
@@ -109,65 +122,8 @@ def check_arguments(model: Any) -> None:
     if shadowed:
         raise ValueError(
             f"policy_kwargs may not set {shadowed}: the features are TRLSD's, shared by the policy and the "
-            "reward heads; give rbf_per_dim and rbf_sigma to TRLSD(...) instead"
+            "reward heads; give feature_map, rbf_per_dim, rbf_sigma or state_bounds to TRLSD(...) instead"
         )
-
-
-class _SingleTaskReward:
-    """A Box-observation env's ``expected_reward(states)`` seen as ``reward_fn(states, task)`` (one task)."""
-
-    def __init__(self, expected_reward: Any):
-        self.expected_reward = expected_reward
-
-    def __call__(self, states: np.ndarray, task: int) -> np.ndarray:
-        return self.expected_reward(states)
-
-
-def known_reward_fn(model: Any, required: bool = True) -> RewardFn | None:
-    """
-    The expected reward the ``"known"`` head uses: the model's ``reward_fn``, or else the env's
-    ``expected_reward(states, task)`` (``expected_reward(states)`` for a single-task Box observation).
-
-    :param model: the model
-    :param required: raise when there is none (else return None)
-    :return: ``reward_fn(states, task) -> (n,)``
-    """
-    if model.reward_fn is not None:
-        return model.reward_fn
-    env = model.env
-    if env is not None and env.has_attr("expected_reward"):
-        method = env.get_attr("expected_reward", indices=0)[0]
-        return method if isinstance(model.observation_space, spaces.Dict) else _SingleTaskReward(method)
-    if required:
-        raise ValueError(
-            "the 'known' reward_head needs reward_fn=reward_fn(states, task) -> expected rewards (n,), "
-            "or an env whose unwrapped object has expected_reward(states, task)"
-        )
-    return None
-
-
-def new_reward_head(model: Any, task: int) -> RewardHead:
-    """
-    A reward head for ``task`` with no samples, as the model's settings say: a copy of the model's
-    ``RewardHead`` instance, or the named head with kappa, sigma, the shared features and the head kwargs.
-
-    :param model: the model
-    :param task: the task
-    :return: the head
-    """
-    if isinstance(model.reward_head, RewardHead):
-        return copy.deepcopy(model.reward_head)
-    return make_reward_head(
-        model.reward_head,
-        task=task,
-        features=model.features,
-        state_space=state_space_of(model.observation_space),
-        kappa=model.kappa,
-        sigma=model.sigma,
-        similarity=model.similarity,
-        reward_fn=known_reward_fn(model) if model.reward_head == "known" else None,
-        **model.reward_head_kwargs,
-    )
 
 
 def hyperparameters_of(model: Any) -> dict[str, int | float | str | bool]:
@@ -184,6 +140,10 @@ def hyperparameters_of(model: Any) -> dict[str, int | float | str | bool]:
         "update_ratio": model.update_ratio,
         "fqi_max_iterations": model.fqi_max_iterations,
         "fqi_tol": model.fqi_tol,
+        "feature_map": model.feature_map
+        if isinstance(model.feature_map, str)
+        else type(model.feature_map).__name__,
+        "n_features": getattr(model.features, "n_features", 0),
         "rbf_per_dim": model.rbf_per_dim,
         "rbf_sigma": model.rbf_sigma,
         "source_transitions": model.source_transitions,
@@ -205,15 +165,3 @@ def resolve_policy(policy: Any, aliases: dict[str, type]) -> type:
     if policy not in aliases:
         raise ValueError(f"policy must be one of {sorted(aliases)} or a policy class, got {policy!r}")
     return aliases[policy]
-
-
-def shared_features(model: Any) -> RBFGrid | None:
-    """
-    The feature map Phi of ``model``, built once from its ``rbf_per_dim`` and ``rbf_sigma`` over the state
-    Box and shared by the linear policy and the ridge heads; None when neither uses features.
-
-    :param model: a ``TRLSD`` model with its spaces
-    """
-    if not (issubclass(model.policy_class, LinearPolicy) or model.reward_head == "ridge"):
-        return None
-    return RBFGrid.for_box(state_space_of(model.observation_space), model.rbf_per_dim, model.rbf_sigma)

@@ -41,6 +41,7 @@ class TaskLearner:
         self.refits = 0
         self.due = False
         self.uncertainty_at_refit: Any = None  # head.snapshot() at the last refit; None before the first
+        self.rows_at_refit = 0  # rows of the shared buffer at the last refit
         # Derived from the head and the buffer, rebuilt after loading: not saved.
         self._relabelling: RewardTracker | None = None
         self._cursor = BufferCursor()
@@ -58,21 +59,28 @@ class TaskLearner:
         """Whether the task's Q-function was fitted at least once."""
         return self.refits > 0
 
-    def observe(self, state: np.ndarray, reward: float) -> None:
+    def observe(self, state: np.ndarray, reward: float, n_rows: int) -> None:
         """
         Add one online sample of the task to its reward head, and mark the task due if the trigger fires:
         section 3 refits once the CI at an encountered state has been divided by ``update_ratio`` since the
         last refit. The ratio is taken on the kappa-free uncertainty, so that kappa = 0 triggers the same way.
+        A head without uncertainty (the known reward) has nothing to divide: it refits when the shared buffer
+        has grown by ``update_ratio`` since the last refit, so that new dynamics data reaches its policy.
 
         :param state: the transition's start state (d,)
         :param reward: the reward observed there
+        :param n_rows: the rows of the shared buffer now
         """
         state = np.asarray(state, dtype=np.float64).reshape(1, -1)
         self.head.update(state, np.array([reward], dtype=np.float64))
-        if self.uncertainty_at_refit is not None and not self.due:
-            then = self.head.uncertainty_as_of(self.uncertainty_at_refit, state)[0]
-            now = self.head.uncertainty(state)[0]
-            self.due = bool(then > 0 and then >= self.update_ratio * now)
+        if not self.fitted or self.due:
+            return
+        if not self.head.has_uncertainty:
+            self.due = n_rows >= self.update_ratio * max(self.rows_at_refit, 1)
+            return
+        then = self.head.uncertainty_as_of(self.uncertainty_at_refit, state)[0]
+        now = self.head.uncertainty(state)[0]
+        self.due = bool(then > 0 and then >= self.update_ratio * now)
 
     def relabelled_rewards(self, buffer: SharedDynamicsReplayBuffer) -> np.ndarray:
         """
@@ -91,8 +99,13 @@ class TaskLearner:
             self._relabelling.extend(rows.states)
         return self._relabelling.optimistic()
 
-    def refitted(self) -> None:
-        """Record a refit of the task's Q-function: the trigger now compares with the uncertainty of now."""
+    def refitted(self, n_rows: int) -> None:
+        """
+        Record a refit of the task's Q-function: the trigger now compares with the uncertainty of now.
+
+        :param n_rows: the rows of the shared buffer it was fitted on
+        """
         self.uncertainty_at_refit = self.head.snapshot()
+        self.rows_at_refit = int(n_rows)
         self.refits += 1
         self.due = False

@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import os
 import warnings
+from collections.abc import Callable, Sequence
 from typing import Any, ClassVar, TypeVar
 
+import gymnasium as gym
 import numpy as np
 import torch as th
 from stable_baselines3.common.callbacks import BaseCallback
@@ -15,21 +17,16 @@ from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
 
 from sb3_trlsd.buffers import SharedDynamicsReplayBuffer
+from sb3_trlsd.builders import new_reward_head, shared_features, state_box
 from sb3_trlsd.callbacks import log_hyperparameters, log_refit
 from sb3_trlsd.data import Transitions
-from sb3_trlsd.features import RBFGrid
+from sb3_trlsd.feature_maps import FeatureMap
 from sb3_trlsd.fqi import DEFAULT_TOL
 from sb3_trlsd.observations import split_observation
 from sb3_trlsd.persistence import SavesSharedBuffer, empty_rows
 from sb3_trlsd.policies import LinearPolicy, MlpPolicy, TaskQPolicy
 from sb3_trlsd.reward_heads import RewardFn, RewardHead
-from sb3_trlsd.settings import (
-    check_arguments,
-    hyperparameters_of,
-    new_reward_head,
-    resolve_policy,
-    shared_features,
-)
+from sb3_trlsd.settings import check_arguments, hyperparameters_of, resolve_policy
 from sb3_trlsd.source_data import load_source_once
 from sb3_trlsd.task_learner import TaskLearner
 
@@ -70,15 +67,25 @@ class TRLSD(SavesSharedBuffer, OffPolicyAlgorithm):
         prior that only the grid's corner cells are rewarded), ``"known"`` (the true expected reward,
         CI = 0), or a ``RewardHead`` instance copied for each task
     :param kappa: optimism (eq. 9, 10); 0 is the non-optimistic method of Atkeson & Santamaria
-    :param sigma: width of the similarity of eq. 6 / 7 in the neighbouring weight W (eq. 8)
+    :param sigma: width of the similarity in the neighbouring weight W (eq. 8): for eq. 6 a fraction of the
+        state box (one number or one per dimension; None: 0.04 in 2-D, the paper's 0.2 on the maze, wider in
+        more dimensions, see ``feature_maps.default_kernel_width``), for eq. 7 a distance between feature
+        vectors (None: 0.2)
     :param similarity: ``"state"`` (eq. 6, on states) or ``"features"`` (eq. 7, on RBF features)
     :param update_ratio: a task's Q is refitted when the CI at an encountered state has been divided by
         this since the last refit (> 1)
     :param fqi_max_iterations: cap on Fitted-Q iterations per refit (None: the policy's own default)
     :param fqi_tol: Fitted-Q stops when the parameters move by less than this, relative to their scale
-    :param rbf_per_dim: RBF centres per state dimension of the features Phi, shared by the linear policy
-        and the ridge head
-    :param rbf_sigma: width of the RBF features (eq. 11)
+    :param feature_map: the features Phi, shared by the linear policy and the ridge heads: ``"rbf"`` (the
+        paper's grid of Gaussian RBFs, eq. 11), ``"fourier"`` (random Fourier features, linear in the
+        dimension), ``"auto"`` (the grid up to 125 centres, else Fourier) or a ``FeatureMap``
+    :param rbf_per_dim: RBF centres per state dimension of the grid
+    :param rbf_sigma: width of the features as a fraction of the state box (one number or one per
+        dimension); None: a fifth of the grid's spacing (0.04, the paper's 0.2 on the maze), or
+        ``default_kernel_width(d)`` for Fourier features
+    :param fourier_features: the number of Fourier features (None: 50 per state dimension)
+    :param state_bounds: ``(low, high)`` of the states, for an unbounded (or loosely bounded) state Box;
+        None: the Box's bounds, which must then be finite
     :param reward_fn: ``reward_fn(states (n, d), task) -> (n,)``, the expected reward for the ``"known"``
         head; by default the env's ``expected_reward``. Not saved: give it again to ``load``
     :param reward_head_kwargs: extra arguments of the reward heads (e.g. ``w_floor``, ``r_max``)
@@ -87,6 +94,8 @@ class TRLSD(SavesSharedBuffer, OffPolicyAlgorithm):
         its spec; the paper's 25,000), or the path of a ``.npz`` saved by ``Transitions.save``; None: none
         (``load_transitions`` does the same by hand). This is how a config file gives the source set.
     :param source_seed: seed of the collection of ``source_transitions`` (None: ``seed``)
+    :param source_env: the env ``source_transitions=<number>`` collects from (an env, or a function making
+        one); None: a copy of the model's env as given, its wrappers kept
     :param log_picture_every: with TensorBoard and an env that draws its tasks (``task_picture``, as the
         maze does), log a picture of a task at its first refit and then every this many of its refits;
         0 disables it
@@ -112,7 +121,7 @@ class TRLSD(SavesSharedBuffer, OffPolicyAlgorithm):
     }
     policy: TaskQPolicy
     replay_buffer: SharedDynamicsReplayBuffer
-    features: RBFGrid | None
+    features: FeatureMap | None
     task_learners: dict[int, TaskLearner]
 
     def __init__(
@@ -122,17 +131,21 @@ class TRLSD(SavesSharedBuffer, OffPolicyAlgorithm):
         gamma: float = 0.9,
         reward_head: str | RewardHead = "ridge",
         kappa: float = 0.1,
-        sigma: float = 0.2,
+        sigma: float | Sequence[float] | None = None,
         similarity: str = "state",
         update_ratio: float = 2.0,
         fqi_max_iterations: int | None = None,
         fqi_tol: float = DEFAULT_TOL,
+        feature_map: str | FeatureMap = "auto",
         rbf_per_dim: int = 5,
-        rbf_sigma: float = 0.2,
+        rbf_sigma: float | Sequence[float] | None = None,
+        fourier_features: int | None = None,
+        state_bounds: tuple[Sequence[float], Sequence[float]] | None = None,
         reward_fn: RewardFn | None = None,
         reward_head_kwargs: dict[str, Any] | None = None,
         source_transitions: int | str | os.PathLike | None = None,
         source_seed: int | None = None,
+        source_env: gym.Env | Callable[[], gym.Env] | None = None,
         log_picture_every: int = 10,
         learning_rate: float | Schedule = 1e-3,
         buffer_size: int = 1_000_000,
@@ -177,12 +190,16 @@ class TRLSD(SavesSharedBuffer, OffPolicyAlgorithm):
         self.update_ratio = update_ratio
         self.fqi_max_iterations = fqi_max_iterations
         self.fqi_tol = fqi_tol
+        self.feature_map = feature_map
         self.rbf_per_dim = rbf_per_dim
         self.rbf_sigma = rbf_sigma
+        self.fourier_features = fourier_features
+        self.state_bounds = state_bounds
         self.reward_fn = reward_fn
         self.reward_head_kwargs = dict(reward_head_kwargs or {})
         self.source_transitions = source_transitions
         self.source_seed = source_seed
+        self.source_env = source_env
         self.log_picture_every = log_picture_every
         self._source_loaded = False
         self.task_learners = {}
@@ -203,6 +220,8 @@ class TRLSD(SavesSharedBuffer, OffPolicyAlgorithm):
         )  # one feature map Phi, for the linear policy and the ridge heads
         if issubclass(self.policy_class, LinearPolicy):
             self.policy_kwargs["features"] = self.features
+        elif issubclass(self.policy_class, MlpPolicy):
+            self.policy_kwargs["state_bounds"] = state_box(self)
         super()._setup_model()
         self._fit_rows = self.policy.new_fit_rows()  # the buffer's rows as the Q-function fits on them
         self._buffer_rows = empty_rows()  # the buffer's rows, during save and load only
@@ -271,7 +290,7 @@ class TRLSD(SavesSharedBuffer, OffPolicyAlgorithm):
             buffer.observations[row], buffer.rewards[row], buffer.tasks[row], strict=True
         ):
             learner = self.task_learner(task)
-            learner.observe(state, float(reward))
+            learner.observe(state, float(reward), n_rows=buffer.size() * buffer.n_envs)
             if getattr(self, "_logger", None) is not None:
                 self.logger.record("reward/target_samples", learner.head.n_samples)
 
@@ -351,7 +370,7 @@ class TRLSD(SavesSharedBuffer, OffPolicyAlgorithm):
         result = self.policy.fit(
             learner.task, self._fit_rows, rewards, self.gamma, self.fqi_max_iterations, self.fqi_tol
         )
-        learner.refitted()
+        learner.refitted(n_rows=self._fit_rows.n_transitions)
         self._n_updates += 1
         log_refit(self, learner, result, rewards)
 

@@ -2,13 +2,13 @@
 
 import pickle
 
-import gymnasium as gym
 import numpy as np
 import pytest
 
-from sb3_trlsd.features import RBFGrid, gaussian_similarity, grid_centres, squared_distances
+from sb3_trlsd.feature_maps import RBFGrid, make_feature_map
+from sb3_trlsd.features import gaussian_similarity, grid_centres, squared_distances
 
-MAZE_GRID = RBFGrid(low=(0, 0), high=(5, 5), n_per_dim=5, sigma=0.2)
+MAZE_GRID = RBFGrid(low=(0, 0), high=(5, 5), n_per_dim=5, sigma=0.04)  # the paper's width 0.2
 
 
 def test_maze_grid_centres_are_the_papers_in_task_order():
@@ -76,10 +76,10 @@ def test_overflowing_distances_give_zero_similarity_not_nan():
     assert np.all(MAZE_GRID(huge) == 0)
 
 
-def test_rbf_grid_for_box_and_pickle():
-    """The grid built from the maze's Box is the paper's; it survives pickling (models are saved)."""
-    grid = RBFGrid.for_box(gym.spaces.Box(0.0, 5.0, shape=(2,)), n_per_dim=5, sigma=0.2)
-    assert grid == MAZE_GRID
+def test_the_default_map_of_the_maze_is_the_papers_grid_and_pickles():
+    """make_feature_map's default on the maze's box is the paper's grid (width 0.2); it survives pickling."""
+    grid = make_feature_map("auto", (0.0, 0.0), (5.0, 5.0))
+    assert grid == MAZE_GRID and grid.widths == (0.2, 0.2)
     restored = pickle.loads(pickle.dumps(grid))
     np.testing.assert_array_equal(restored.centres, grid.centres)
     states = np.array([[0.3, 4.1]])

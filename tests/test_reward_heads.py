@@ -8,7 +8,7 @@ from gymnasium import spaces
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from sb3_trlsd.features import RBFGrid
+from sb3_trlsd.feature_maps import RBFGrid
 from sb3_trlsd.reward_heads import (
     GridCells,
     KernelSumTracker,
@@ -21,7 +21,7 @@ from sb3_trlsd.reward_heads import (
 )
 from sb3_trlsd_envs.dynamics import cell_of
 
-GRID = RBFGrid(low=(0, 0), high=(5, 5), n_per_dim=5, sigma=0.2)
+GRID = RBFGrid(low=(0, 0), high=(5, 5), n_per_dim=5, sigma=0.04)  # the paper's width 0.2
 MAZE_BOX = spaces.Box(0, 5, (2,))
 MAZE_CELLS = GridCells((0, 0), (5, 5), 5)  # the maze's 25 cells, cell id = the task index of its task
 # Rounding of sums of up to a few hundred positive terms, computed in different orders or blocks.

@@ -37,7 +37,7 @@ def test_known_reward_gives_a_rational_policy_at_once(paper_source_transitions):
 
 def test_learn_relabels_fits_and_logs_to_tensorboard(source_transitions, tmp_path):
     """learn() with the optimistic ridge head refits the policy and writes the documented TensorBoard tags."""
-    model = make_model(source_transitions, tensorboard_log=str(tmp_path), kappa=0.1, sigma=0.2)
+    model = make_model(source_transitions, tensorboard_log=str(tmp_path), kappa=0.1, sigma=0.04)
     model.learn(total_timesteps=300, log_interval=1)
     assert model.policy_updates[0] >= 2
     assert model.reward_heads[0].n_samples == 300

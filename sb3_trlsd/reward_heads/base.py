@@ -129,6 +129,8 @@ class RewardHead(ABC):
     :param r_max: optional upper bound on the reward (expert knowledge): R~ is capped at it
     """
 
+    has_uncertainty = True  # False for a head whose CI is 0 by construction (the known reward)
+
     def __init__(self, kappa: float = 0.1, r_max: float | None = None):
         if not kappa >= 0 or not np.isfinite(kappa):
             raise ValueError(

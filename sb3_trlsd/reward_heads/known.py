@@ -27,6 +27,8 @@ class KnownRewardHead(RewardHead):
     :param task: the task passed to ``reward_fn``
     """
 
+    has_uncertainty = False
+
     def __init__(self, reward_fn: RewardFn | None, task: int = 0):
         super().__init__(kappa=0.0)
         self.task = int(task)

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
@@ -36,7 +36,8 @@ class RidgeRewardHead(RewardHead):
 
     :param features: Phi, states (n, d) -> (n, k) (e.g. an ``RBFGrid``)
     :param kappa: optimism (eq. 9), >= 0
-    :param sigma: width of the similarity (eq. 6 / 7), > 0
+    :param sigma: width of the similarity (eq. 6 / 7), > 0; for the ``"state"`` similarity one width per
+        state dimension is allowed (in state units: eq. 6 then weighs each dimension by its own width)
     :param similarity: ``"state"`` (S_S, eq. 6, on states) or ``"features"`` (S_Phi, eq. 7, on Phi(s))
     :param ridge: Tikhonov regularisation lambda (1 in the paper), > 0
     :param w_floor: floor on W_tau(s), > 0 (see the module docstring)
@@ -47,7 +48,7 @@ class RidgeRewardHead(RewardHead):
         self,
         features: StatesFn,
         kappa: float = 0.1,
-        sigma: float = 0.2,
+        sigma: float | Sequence[float] | np.ndarray = 0.2,
         similarity: str = "state",
         ridge: float = 1.0,
         w_floor: float = DEFAULT_W_FLOOR,
@@ -57,7 +58,16 @@ class RidgeRewardHead(RewardHead):
         if similarity not in SIMILARITIES:
             raise ValueError(f"similarity must be 'state' (eq. 6) or 'features' (eq. 7), got {similarity!r}")
         self.features = features
-        self.sigma = check_positive("sigma", sigma, "the width of the similarity")
+        widths = np.atleast_1d(np.asarray(sigma, dtype=np.float64))
+        if widths.ndim != 1 or not len(widths) or not np.all(np.isfinite(widths)) or not np.all(widths > 0):
+            raise ValueError(f"sigma must be > 0 and finite (the width of the similarity), got {sigma!r}")
+        if len(widths) > 1 and similarity != "state":
+            raise ValueError(
+                "one sigma per dimension is for the 'state' similarity; eq. 7's takes one number"
+            )
+        self.sigma = float(widths[0])
+        # eq. 6 with per-dimension widths is eq. 6 of width sigma on states rescaled by sigma / width_d.
+        self._point_scale = None if np.all(widths == widths[0]) else widths[0] / widths
         self.similarity = similarity
         self.ridge = check_positive("ridge", ridge, "the Tikhonov regularisation lambda, 1 in the paper")
         self.w_floor = check_positive("w_floor", w_floor, "the floor of the neighbouring weight W")
@@ -78,7 +88,8 @@ class RidgeRewardHead(RewardHead):
         :return: (n, d) or (n, k)
         """
         if self.similarity == "state":
-            return np.asarray(states, dtype=np.float64)
+            states = np.asarray(states, dtype=np.float64)
+            return states if self._point_scale is None else states * self._point_scale
         return self.features(states) if phi is None else phi
 
     def _update(self, states: np.ndarray, rewards: np.ndarray) -> None:

@@ -1,0 +1,159 @@
+"""TRLSD off the maze: scale-free defaults, unbounded boxes, heads without the maze, source data as given."""
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium import spaces
+
+from sb3_trlsd import TRLSD, Transitions, collect_transitions
+from sb3_trlsd.feature_maps import RandomFourierFeatures, RBFGrid
+from sb3_trlsd.reward_heads import GridCells, KnownRewardHead, TabularRewardHead
+from tests.conftest import MAZE_ID
+
+
+class ScaledState(gym.ObservationWrapper):
+    """The maze with its state Box stretched: states x ``scale`` + ``shift``, the same task family."""
+
+    def __init__(self, env, scale=10.0, shift=0.0):
+        super().__init__(env)
+        self.scale, self.shift = scale, shift
+        box = env.observation_space["state"]
+        state_box = spaces.Box(box.low * scale + shift, box.high * scale + shift, dtype=np.float32)
+        self.observation_space = spaces.Dict({"state": state_box, "task": env.observation_space["task"]})
+
+    def observation(self, observation):
+        state = (observation["state"].astype(np.float64) * self.scale + self.shift).astype(np.float32)
+        return {"state": state, "task": observation["task"]}
+
+
+def scaled(transitions: Transitions, scale: float, shift: float) -> Transitions:
+    fields = {name: getattr(transitions, name) for name in Transitions.__dataclass_fields__}
+    return Transitions(
+        **{
+            **fields,
+            "states": transitions.states * scale + shift,
+            "next_states": transitions.next_states * scale + shift,
+        }
+    )
+
+
+@pytest.mark.parametrize("reward_head", ["ridge", "tabular"])
+def test_a_scaled_copy_of_the_maze_learns_exactly_as_the_original_with_default_arguments(
+    source_transitions, reward_head
+):
+    """
+    Widths are fractions of the state box: on the maze x 10 + 3, TRLSD's defaults take the actions they
+    take on the maze (with absolute widths, the 0.2 tuned for the maze was 0.02 of the stretched box).
+    """
+    actions = []
+    for scale, shift in ((1.0, 0.0), (10.0, 3.0)):
+        env = ScaledState(gym.make(MAZE_ID, task=(1, 5)), scale, shift)
+        model = TRLSD("LinearPolicy", env, reward_head=reward_head, seed=1)
+        model.load_transitions(scaled(source_transitions, scale, shift))
+        model.learn(total_timesteps=150)
+        actions.append(model.replay_buffer.transitions().actions[-150:])
+        assert model.policy_updates[4] >= 2
+    np.testing.assert_array_equal(actions[0], actions[1])
+
+
+def test_an_unbounded_state_box_is_refused_with_the_way_to_bound_it():
+    """CartPole's velocities are unbounded: the error names the dimensions and state_bounds, which fix it."""
+    with pytest.raises(ValueError, match=r"unbounded in dimension\(s\) \[1, 3\].*state_bounds"):
+        TRLSD("LinearPolicy", "CartPole-v1")
+    bounds = (np.array([-2.4, -3.0, -0.21, -3.5]), np.array([2.4, 3.0, 0.21, 3.5]))
+    model = TRLSD("LinearPolicy", "CartPole-v1", state_bounds=bounds, seed=0)
+    assert isinstance(model.features, RandomFourierFeatures) and model.features.n_features == 200
+    model.learn(total_timesteps=60)
+    assert model.policy_updates[0] >= 1 and np.isfinite(model.policy.theta.numpy()).all()
+    mlp = TRLSD(
+        "MlpPolicy", "CartPole-v1", reward_head="tabular", state_bounds=bounds, fqi_max_iterations=1, seed=0
+    )
+    mlp.learn(total_timesteps=20)
+    assert mlp.policy_updates[0] >= 1
+
+
+def test_the_default_features_follow_the_dimension():
+    """The paper's 5 x 5 grid in 2-D, Fourier features growing linearly with the dimension beyond 3-D."""
+    maze = TRLSD("LinearPolicy", gym.make(MAZE_ID))
+    assert (
+        isinstance(maze.features, RBFGrid)
+        and maze.features.n_features == 25
+        and maze.features.widths == (0.2, 0.2)
+    )
+    six_d = gym.make("Acrobot-v1")
+    model = TRLSD(
+        "LinearPolicy",
+        six_d,
+        state_bounds=(six_d.observation_space.low * 0 - 1, -six_d.observation_space.low * 0 + 1),
+    )
+    assert isinstance(model.features, RandomFourierFeatures) and model.features.n_features == 300
+    with pytest.raises(ValueError, match="rbf_per_dim=5 on a 6-D state"):
+        TRLSD("LinearPolicy", six_d, feature_map="rbf", state_bounds=(-np.ones(6), np.ones(6)))
+
+
+def test_the_tabular_head_takes_a_user_discretisation_and_the_grid_by_default():
+    """reward_head='tabular' on a 3-D Box: GridCells of cells_per_dim; or the user's cell_fn and n_cells."""
+    env = gym.make(MAZE_ID)
+    grid = TRLSD("LinearPolicy", env, reward_head="tabular", reward_head_kwargs={"cells_per_dim": 2})
+    head = grid.reward_head_of(0)
+    assert isinstance(head, TabularRewardHead) and head.n_cells == 4 and isinstance(head.cell_fn, GridCells)
+    corners = TRLSD("LinearPolicy", env, reward_head="corners").reward_head_of(0)
+    assert np.flatnonzero(corners.allowed).tolist() == [0, 4, 20, 24]
+
+    def halves(states):
+        return (states[:, 0] > 2.5).astype(np.int64)
+
+    user = TRLSD(
+        "LinearPolicy", env, reward_head="tabular", reward_head_kwargs={"cell_fn": halves, "n_cells": 2}
+    )
+    user.reward_head_of(0).update(np.array([[1.0, 1.0], [4.0, 1.0], [4.5, 3.0]]), np.array([0.0, 1.0, 3.0]))
+    np.testing.assert_allclose(
+        user.reward_head_of(0).estimate(np.array([[0.5, 0.5], [3.0, 4.0]])), [0.0, 2.0]
+    )
+
+
+def test_the_known_head_checks_its_reward_fn_and_refits_as_the_buffer_grows():
+    """
+    reward_fn(states, task) must return one finite reward per state. Without source data, the known head
+    (CI = 0, nothing to divide) refits whenever the shared buffer has doubled since its last refit.
+    """
+    env = gym.make(
+        MAZE_ID, tasks="corners", task_schedule="round_robin", termination_prob=0.0, max_episode_steps=50
+    )
+    model = TRLSD("LinearPolicy", env, reward_head="known", seed=0)
+    model.learn(total_timesteps=400)
+    assert all(isinstance(head, KnownRewardHead) for head in model.reward_heads.values())
+    # Task 0 first fits on no row, then at 2, 4, 8, ... 256 rows; task 24 first fits on 150, then at 300.
+    assert model.policy_updates[0] >= 7 and all(model.policy_updates[task] >= 2 for task in (4, 20, 24))
+
+    def wrong(states, task):
+        return np.zeros((len(states), 2))
+
+    bad = TRLSD("LinearPolicy", gym.make(MAZE_ID), reward_head="known", reward_fn=wrong)
+    with pytest.raises(ValueError, match=r"reward_fn\(states, task=0\) must return"):
+        bad.update_policy(0)
+
+
+def test_source_collection_goes_through_the_users_wrappers():
+    """source_transitions=<number> collects from the env as given: every source state is stretched x 10."""
+    env = ScaledState(gym.make(MAZE_ID, task=(2, 2)), 10.0)
+    model = TRLSD("LinearPolicy", env, source_transitions=300, seed=0)
+    model.learn(total_timesteps=5)
+    states = model.replay_buffer.transitions().states
+    assert len(states) == 305 and states.max() > 10 and states.min() >= 0 and states.max() <= 50
+
+
+def test_source_env_is_used_when_given():
+    """source_env= (an env, or a function making one) replaces the copy of the model's env."""
+    made = []
+
+    def make_source():
+        made.append(True)
+        return gym.make(MAZE_ID, task=(4, 4))
+
+    model = TRLSD(
+        "LinearPolicy", gym.make(MAZE_ID, task=(2, 2)), source_transitions=200, source_env=make_source, seed=0
+    )
+    model.learn(total_timesteps=3)
+    reference = collect_transitions(gym.make(MAZE_ID, task=(4, 4)), 200, seed=0)
+    assert made and np.array_equal(model.replay_buffer.transitions().tasks[:200], reference.tasks)
