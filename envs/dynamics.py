@@ -50,7 +50,7 @@ REBOUND_LOW, REBOUND_HIGH = 0.1, 0.5
 MAX_REBOUNDS = 64
 
 
-def _as_segments(walls: Iterable | np.ndarray) -> np.ndarray:
+def as_segments(walls: Iterable | np.ndarray) -> np.ndarray:
     """The walls as an ``(m, 4)`` float array, or a ValueError naming ``walls`` for any other shape."""
     try:
         segments = np.asarray(walls if isinstance(walls, np.ndarray) else list(walls), dtype=np.float64)
@@ -76,7 +76,7 @@ def make_walls(walls: Iterable | np.ndarray = DEFAULT_WALLS) -> np.ndarray:
         the four sides of the square included
     :raises ValueError: naming ``walls`` for a segment off the grid, diagonal, or of zero length
     """
-    segments = _as_segments(walls)
+    segments = as_segments(walls)
     for x0, y0, x1, y1 in segments:
         text = f"(({x0:g}, {y0:g}), ({x1:g}, {y1:g}))"
         ends = np.array([x0, y0, x1, y1])

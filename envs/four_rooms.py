@@ -8,9 +8,8 @@ from typing import Any
 import numpy as np
 from gymnasium import spaces
 
-from sb3_trlsd_envs.dynamics import _as_segments, maze_step
-from sb3_trlsd_envs.maze import _trajectory_lengths
-from sb3_trlsd_envs.multitask import TaskFamilyEnv, check_non_negative, random_rollouts
+from sb3_trlsd_envs.dynamics import as_segments, maze_step
+from sb3_trlsd_envs.multitask import TaskFamilyEnv, check_non_negative, random_rollouts, trajectory_lengths
 
 __all__ = [
     "FOUR_ROOMS_GOALS",
@@ -54,7 +53,7 @@ def make_room_walls(walls: Iterable | np.ndarray = FOUR_ROOMS_WALLS) -> np.ndarr
     :return: ``(k, 4)`` distinct segments ``x0, y0, x1, y1`` with ``x0 <= x1``, ``y0 <= y1``, border included
     :raises ValueError: naming ``walls`` for a segment off the grid or the square, diagonal or of zero length
     """
-    segments = np.concatenate([np.reshape(BORDER, (-1, 4)), _as_segments(walls)])
+    segments = np.concatenate([np.reshape(BORDER, (-1, 4)), as_segments(walls)])
     ends = segments * GRID
     problems = (
         (~np.isfinite(ends).all(axis=1) | (np.round(ends) != ends).any(axis=1), "lie on the 1/8 grid"),
@@ -252,7 +251,7 @@ class FourRooms(TaskFamilyEnv):
         """
         rng = np.random.default_rng(seed)
         cap = n_transitions if max_episode_steps is None else min(max_episode_steps, n_transitions)
-        full_lengths, cut_lengths = _trajectory_lengths(rng, self.termination_prob, n_transitions, cap)
+        full_lengths, cut_lengths = trajectory_lengths(rng, self.termination_prob, n_transitions, cap)
         tasks = self.schedule.draw(rng, len(full_lengths))
         starts = rng.uniform(0.0, 1.0, size=(len(full_lengths), 2))
 

@@ -20,6 +20,7 @@ from sb3_trlsd_envs.dynamics import (
     make_walls,
     maze_step,
 )
+from sb3_trlsd_envs.multitask import trajectory_lengths, warn_no_render_mode
 
 __all__ = [
     "CORNER_TASKS",
@@ -109,30 +110,6 @@ def expected_reward(states: np.ndarray, task: Task) -> np.ndarray:
     i, j = task_cell(task)
     cells = cell_of(states)
     return ((cells[:, 0] == i) & (cells[:, 1] == j)).astype(np.float64)
-
-
-def _trajectory_lengths(
-    rng: np.random.Generator, termination_prob: float, n_transitions: int, cap: int
-) -> tuple[np.ndarray, np.ndarray]:
-    """
-    Lengths of the trajectories that make up ``n_transitions`` transitions.
-
-    :param rng: random generator
-    :param termination_prob: probability of a reset after each step (lengths are geometric)
-    :param n_transitions: total length
-    :param cap: time limit of a trajectory
-    :return: the drawn lengths, and the same with the last one cut so that they sum to ``n_transitions``
-    """
-    lengths: list[int] = []
-    while sum(lengths) < n_transitions:
-        drawn = rng.geometric(termination_prob, size=64) if termination_prob > 0 else [cap] * 64
-        lengths.extend(int(min(length, cap)) for length in drawn)
-    ends = np.cumsum(lengths)
-    n_trajectories = int(np.searchsorted(ends, n_transitions) + 1)
-    full_lengths = np.array(lengths[:n_trajectories])
-    cut_lengths = full_lengths.copy()
-    cut_lengths[-1] -= int(ends[n_trajectories - 1]) - n_transitions
-    return full_lengths, cut_lengths
 
 
 class SharedDynamicsMaze(gym.Env):
@@ -263,7 +240,7 @@ class SharedDynamicsMaze(gym.Env):
         """
         rng = np.random.default_rng(seed)
         cap = n_transitions if max_episode_steps is None else min(max_episode_steps, n_transitions)
-        full_lengths, cut_lengths = _trajectory_lengths(rng, self.termination_prob, n_transitions, cap)
+        full_lengths, cut_lengths = trajectory_lengths(rng, self.termination_prob, n_transitions, cap)
         n_trajectories = len(full_lengths)
         offsets = np.concatenate([[0], np.cumsum(cut_lengths)[:-1]])
         tasks = self._scheduled_tasks(rng, n_trajectories)
@@ -371,10 +348,7 @@ class SharedDynamicsMaze(gym.Env):
 
     def render(self):
         if self.render_mode is None:
-            gym.logger.warn(
-                "You are calling render method without specifying any render mode; "
-                'pass render_mode="rgb_array" at initialization'
-            )
+            warn_no_render_mode()
             return None
         from sb3_trlsd_envs.rendering import render_maze
 

@@ -54,6 +54,38 @@ def check_render_mode(render_mode: str | None, metadata: dict[str, Any]) -> None
         )
 
 
+def warn_no_render_mode() -> None:
+    """What ``render`` says without a render mode, as Gymnasium's own envs do (then it returns None)."""
+    gym.logger.warn(
+        'You are calling render method without specifying any render mode; pass render_mode="rgb_array" at '
+        "initialization"
+    )
+
+
+def trajectory_lengths(
+    rng: np.random.Generator, termination_prob: float, n_transitions: int, cap: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """
+    Lengths of the trajectories that make up ``n_transitions`` transitions.
+
+    :param rng: random generator
+    :param termination_prob: probability of a reset after each step (lengths are geometric)
+    :param n_transitions: total length
+    :param cap: time limit of a trajectory
+    :return: the drawn lengths, and the same with the last one cut so that they sum to ``n_transitions``
+    """
+    lengths: list[int] = []
+    while sum(lengths) < n_transitions:
+        drawn = rng.geometric(termination_prob, size=64) if termination_prob > 0 else [cap] * 64
+        lengths.extend(int(min(length, cap)) for length in drawn)
+    ends = np.cumsum(lengths)
+    n_trajectories = int(np.searchsorted(ends, n_transitions) + 1)
+    full_lengths = np.array(lengths[:n_trajectories])
+    cut_lengths = full_lengths.copy()
+    cut_lengths[-1] -= int(ends[n_trajectories - 1]) - n_transitions
+    return full_lengths, cut_lengths
+
+
 class TaskSchedule:
     """
     The tasks an env serves and which one each trajectory gets.
@@ -248,9 +280,6 @@ class TaskFamilyEnv(gym.Env):
     def render(self):
         """The picture of ``render_mode="rgb_array"``; without a render mode, a warning and None."""
         if self.render_mode is None:
-            gym.logger.warn(
-                "You are calling render method without specifying any render mode; "
-                'pass render_mode="rgb_array" at initialization'
-            )
+            warn_no_render_mode()
             return None
         return self._render()
