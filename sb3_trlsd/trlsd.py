@@ -215,9 +215,8 @@ class TRLSD(SavesSharedBuffer, OffPolicyAlgorithm):
                 "replay_buffer_class must be a SharedDynamicsReplayBuffer subclass, "
                 f"got {self.replay_buffer_class}"
             )
-        self.features = shared_features(
-            self
-        )  # one feature map Phi, for the linear policy and the ridge heads
+        # One feature map Phi, for the linear policy and the ridge heads.
+        self.features = shared_features(self)
         if issubclass(self.policy_class, LinearPolicy):
             self.policy_kwargs["features"] = self.features
         elif issubclass(self.policy_class, MlpPolicy):
