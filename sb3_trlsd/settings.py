@@ -70,13 +70,14 @@ def check_arguments(model: Any) -> None:
         raise ValueError(
             f"feature_map must be one of {list(FEATURE_MAPS)} or a FeatureMap, got {model.feature_map!r}"
         )
-    fourier = model.fourier_features
-    _require(
-        fourier is None or (isinstance(fourier, (int, np.integer)) and fourier >= 1),
-        "fourier_features",
-        "None or an integer >= 1",
-        fourier,
-    )
+
+    def integer(name: str, minimum: int, none_allowed: bool = False) -> None:
+        value = getattr(model, name)
+        ok = isinstance(value, (int, np.integer)) and not isinstance(value, bool) and value >= minimum
+        meaning = f"an integer >= {minimum}" + (" or None" if none_allowed else "")
+        _require(ok or (none_allowed and value is None), name, meaning, value)
+
+    integer("fourier_features", 1, none_allowed=True)
     _require(
         finite("update_ratio") > 1,
         "update_ratio",
@@ -85,19 +86,8 @@ def check_arguments(model: Any) -> None:
     )
     _require(0 < finite("gamma") < 1, "gamma", "in (0, 1)", model.gamma)
     _require(finite("fqi_tol") >= 0, "fqi_tol", ">= 0 (a relative tolerance)", model.fqi_tol)
-    _require(
-        isinstance(model.rbf_per_dim, (int, np.integer)) and model.rbf_per_dim >= 1,
-        "rbf_per_dim",
-        "an integer >= 1",
-        model.rbf_per_dim,
-    )
-    iterations = model.fqi_max_iterations
-    _require(
-        iterations is None or (isinstance(iterations, (int, np.integer)) and iterations >= 1),
-        "fqi_max_iterations",
-        "an integer >= 1 or None",
-        iterations,
-    )
+    integer("rbf_per_dim", 1)
+    integer("fqi_max_iterations", 1, none_allowed=True)
     if model.similarity not in SIMILARITIES:
         raise ValueError(f"similarity must be 'state' or 'features', got {model.similarity!r}")
     source = model.source_transitions
@@ -112,12 +102,7 @@ def check_arguments(model: Any) -> None:
         "None, a number >= 1 or the path of a .npz",
         source,
     )
-    _require(
-        isinstance(model.log_picture_every, (int, np.integer)) and model.log_picture_every >= 0,
-        "log_picture_every",
-        "an integer >= 0",
-        model.log_picture_every,
-    )
+    integer("log_picture_every", 0)
     shadowed = sorted(set(model.policy_kwargs or {}) & set(FEATURE_SETTINGS))
     if shadowed:
         raise ValueError(

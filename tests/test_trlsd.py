@@ -55,7 +55,11 @@ def test_learn_relabels_fits_and_logs_to_tensorboard(source_transitions, tmp_pat
 
 
 def test_learn_logs_pictures_and_hyperparameters_to_tensorboard(tmp_path):
-    """The maze's picture of a task at its first refit and every log_picture_every refits, and the HParams."""
+    """
+    The maze's picture of a task at its first refit and every log_picture_every refits, and the HParams.
+    With the default log_interval (4 episodes, ~4 dumps in 300 steps) a picture recorded into the logger
+    would be overwritten before the dump; written when made, every due picture is in the file.
+    """
     model = TRLSD(
         "LinearPolicy",
         gym.make(MAZE_ID, task=(1, 5)),
@@ -64,17 +68,20 @@ def test_learn_logs_pictures_and_hyperparameters_to_tensorboard(tmp_path):
         tensorboard_log=str(tmp_path),
         seed=0,
     )
-    model.learn(total_timesteps=60)
-    pictures, hparams = [], set()
+    model.learn(total_timesteps=300)
+    pictures, steps, hparams = [], [], set()
     for event_file in tmp_path.rglob("events.out.tfevents.*"):
         for event in EventFileLoader(str(event_file)).Load():
             for value in event.summary.value:
                 if value.tag == "pictures/task_4":
                     pictures.append(value.tensor.string_val)  # width, height, PNG bytes
+                    steps.append(event.step)
                 if value.metadata.plugin_data.plugin_name == "hparams":
                     hparams.add(value.tag)
-    # One picture per dump at most (later records of a tag replace earlier ones before the dump).
-    assert 1 <= len(pictures) <= model.policy_updates[4] // 3 + 1
+    refits = model.policy_updates[4]
+    assert refits >= 6
+    assert len(pictures) == 1 + refits // 3
+    assert steps[0] == 0  # the first refit, before the first step
     width, height, png = pictures[0]
     assert (int(height), int(width)) == (360, 720)
     assert png.startswith(b"\x89PNG")

@@ -11,7 +11,6 @@ import zipfile
 import gymnasium as gym
 import numpy as np
 import pytest
-from tensorboard.backend.event_processing.event_file_loader import EventFileLoader
 
 from sb3_trlsd import TRLSD, TaskLearner
 from tests.conftest import MAZE_ID
@@ -184,30 +183,6 @@ def test_predict_on_a_task_never_fitted_warns_once_per_task():
         model.predict({**obs, "task": 5})
     with pytest.warns(UserWarning, match="task 4"):
         model.predict({"state": np.ones((2, 2), dtype=np.float32), "task": np.array([4, 5])})
-
-
-def test_pictures_of_the_first_refit_and_every_period_all_reach_the_event_file(tmp_path):
-    """
-    With the default log_interval (4 episodes, here ~4 dumps in 300 steps) a picture recorded into the
-    logger would be overwritten before the dump; written when made, every due picture is in the file.
-    """
-    model = TRLSD(
-        "LinearPolicy",
-        gym.make(MAZE_ID, task=(1, 5)),
-        source_transitions=500,
-        log_picture_every=3,
-        tensorboard_log=str(tmp_path),
-        seed=0,
-    )
-    model.learn(total_timesteps=300)
-    steps = []
-    for event_file in tmp_path.rglob("events.out.tfevents.*"):
-        for event in EventFileLoader(str(event_file)).Load():
-            steps += [event.step for value in event.summary.value if value.tag == "pictures/task_4"]
-    refits = model.policy_updates[4]
-    assert refits >= 6
-    assert len(steps) == 1 + refits // 3
-    assert steps[0] == 0  # the first refit, before the first step
 
 
 def test_a_user_package_named_envs_does_not_break_the_mazes_registration(tmp_path):
