@@ -58,6 +58,8 @@ class Method:
     :param similarity: ``"state"`` (eq. 6) or ``"features"`` (eq. 7)
     :param update_ratio: refit when the CI at an encountered state has been divided by this
     :param transfer: start from the random source transitions (False: "no transfer")
+    :param policy: the Q-function, a name of ``TRLSD.policy_aliases``: ``"LinearPolicy"`` (the paper's linear
+        Q on 5x5 RBFs) or ``"MlpPolicy"``
     """
 
     label: str
@@ -67,15 +69,16 @@ class Method:
     similarity: str = "state"
     update_ratio: float = 2.0
     transfer: bool = True
+    policy: str = "LinearPolicy"
 
     def parameters(self) -> dict[str, Any]:
         """The method as a JSON-friendly dict."""
         return asdict(self)
 
     def make_model(self, env: gym.Env, seed: int) -> TRLSD:
-        """A TRLSD model of this method on ``env`` (the paper's linear Q on 5x5 RBFs)."""
+        """A TRLSD model of this method on ``env``."""
         return TRLSD(
-            "LinearPolicy",
+            self.policy,
             env,
             reward_head=self.reward_head,
             kappa=self.kappa,
