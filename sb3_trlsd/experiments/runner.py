@@ -25,7 +25,7 @@ import numpy as np
 from sb3_trlsd.data import collect_transitions
 from sb3_trlsd.experiments.jobs import run_jobs
 from sb3_trlsd.trlsd import TRLSD
-from sb3_trlsd_envs import MAZE_ID, expected_reward
+from sb3_trlsd_envs import MAZE_ID
 from sb3_trlsd_envs.dynamics import MAZE_SIZE
 from sb3_trlsd_envs.pictures import greedy_policy_grid, state_grid
 
@@ -134,7 +134,7 @@ def _broken_at_resets(states: np.ndarray, new_trajectory: np.ndarray, start: int
     rows = []
     for t in range(start, stop):
         if new_trajectory[t] and t > start:
-            rows.append(np.full(2, np.nan))
+            rows.append(np.full(states.shape[1], np.nan))
         rows.append(states[t])
     return np.array(rows)
 
@@ -148,11 +148,12 @@ def run_online(
     reset after the end of each trajectory.
 
     :param model: the model (``learning_starts=0``, ``train_freq=1``, its defaults)
-    :param env: the env the model was built on (stepped here directly)
+    :param env: the env the model was built on (stepped here directly), of any task family: Dict
+        observations and ``env.unwrapped.expected_reward(states, task)``
     :param n_steps: online transitions
     :param seed: seed of the env's first reset (``learn`` uses the model's seed)
-    :param snapshot_at: steps after which to take a ``Snapshot`` of the first task
-    :return: the record; ``rewards`` are noise-free expected rewards of the visited states
+    :param snapshot_at: steps after which to take a ``Snapshot`` of the first task (the maze only)
+    :return: the record; ``rewards`` are noise-free expected rewards of the visited (observed) states
     """
     snapshot_steps = sorted(set(snapshot_at))
     trail_starts = {  # each snapshot draws the states since the previous one, at most SNAPSHOT_TRAIL
@@ -160,7 +161,7 @@ def run_online(
         for previous, step in itertools.pairwise([0, *snapshot_steps])
     }
     updates_before = sum(model.policy_updates.values())
-    states = np.empty((n_steps + 1, 2))
+    states = np.empty((n_steps + 1, *env.observation_space["state"].shape))
     tasks = np.empty(n_steps, dtype=np.int64)
     new_trajectory = np.zeros(n_steps + 1, dtype=bool)  # states[t] starts a trajectory after a reset
     snapshots = []
@@ -185,7 +186,7 @@ def run_online(
         snapshots.append(snapshot(model, int(tasks[0]), n_steps, trail))
     rewards = np.empty(n_steps)
     for task in np.unique(tasks):
-        rewards[tasks == task] = expected_reward(states[:n_steps][tasks == task], int(task))
+        rewards[tasks == task] = env.unwrapped.expected_reward(states[:n_steps][tasks == task], int(task))
     return RunRecord(
         rewards=rewards,
         tasks=tasks,
