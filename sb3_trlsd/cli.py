@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 import argparse
+import functools
 import multiprocessing
 import os
 import signal
 import sys
 import tempfile
 import warnings
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager, suppress
 from pathlib import Path
 
@@ -18,6 +19,7 @@ import numpy as np
 
 import sb3_trlsd_envs
 from sb3_trlsd.experiments import FIGURES
+from sb3_trlsd.experiments.benchmark import FAMILIES
 
 __all__ = ["main"]
 
@@ -122,7 +124,7 @@ def stopped_by_signals() -> Iterator[list[int]]:
 
 
 def interruption_message(interrupt: KeyboardInterrupt, figure: str, cache: Path | None) -> str:
-    """What an interrupted ``reproduce`` kept, and how to resume it."""
+    """What an interrupted ``reproduce`` (or ``benchmark``) kept, and how to resume it."""
     from sb3_trlsd.experiments.jobs import RunsInterrupted
 
     if cache is None:
@@ -134,9 +136,36 @@ def interruption_message(interrupt: KeyboardInterrupt, figure: str, cache: Path 
     return f"interrupted: {kept} kept in {cache}; run the same command again to resume"
 
 
-def print_warning(message: Warning | str, *args: object, **kwargs: object) -> None:
+def print_warning(
+    message: Warning | str, *args: object, command: str = "reproduce", **kwargs: object
+) -> None:
     """A warning on one line of stderr (``warnings.showwarning`` adds its file and source line)."""
-    print(f"sb3-trlsd reproduce: warning: {message}", file=sys.stderr)
+    print(f"sb3-trlsd {command}: warning: {message}", file=sys.stderr)
+
+
+def run_in_turn(
+    command: str, names: Sequence[str], run_one: Callable[[str], None], cache: Path | None
+) -> int:
+    """
+    ``run_one(name)`` for each name in turn, each warning on one line; the first SIGINT or SIGTERM stops it
+    and says what the run cache kept.
+
+    :param command: the subcommand, for the messages
+    :param names: the figures or families
+    :param run_one: runs one of them, writes its files and prints its table
+    :param cache: the run cache (None: none)
+    :return: 0, or 128 + the signal's number when SIGINT or SIGTERM stopped it
+    """
+    name = names[0]
+    with stopped_by_signals() as received, warnings.catch_warnings():
+        warnings.showwarning = functools.partial(print_warning, command=command)
+        try:
+            for name in names:
+                run_one(name)
+        except KeyboardInterrupt as interrupt:
+            print(f"sb3-trlsd {command}: {interruption_message(interrupt, name, cache)}", file=sys.stderr)
+            return 128 + (received[0] if received else signal.SIGINT)
+    return 0
 
 
 def reproduce_figure(figure: str, out: Path, cache: Path | None, args: argparse.Namespace) -> None:
@@ -158,16 +187,46 @@ def reproduce_command(args: argparse.Namespace) -> int:
     out = usable_directory(args.out, "--out")
     cache = None if args.no_cache else usable_directory(args.cache or out / "runs", "--cache")
     figures = list(FIGURES) if args.figure == "all" else [args.figure]
-    figure = figures[0]
-    with stopped_by_signals() as received, warnings.catch_warnings():
-        warnings.showwarning = print_warning
-        try:
-            for figure in figures:
-                reproduce_figure(figure, out, cache, args)
-        except KeyboardInterrupt as interrupt:
-            print(f"sb3-trlsd reproduce: {interruption_message(interrupt, figure, cache)}", file=sys.stderr)
-            return 128 + (received[0] if received else signal.SIGINT)
-    return 0
+    return run_in_turn("reproduce", figures, lambda figure: reproduce_figure(figure, out, cache, args), cache)
+
+
+def benchmark_family(family: str, out: Path, cache: Path | None, args: argparse.Namespace) -> None:
+    """Run one family's benchmark, write its files and print its table."""
+    from sb3_trlsd.experiments.benchmark import benchmark
+    from sb3_trlsd.experiments.reporting import results_table
+
+    data = benchmark(family, out, runs=args.runs, seed=args.seed, workers=args.workers, cache=cache)
+    name = f"benchmark_{family}"
+    files = ", ".join(str(out.absolute() / f"{name}.{ext}") for ext in ("png", "csv", "json"))
+    print(f"{name} done in {data['wall_time_seconds']:.0f} s: {files}\n\n{results_table(data)}\n")
+
+
+def benchmark_command(args: argparse.Namespace) -> int:
+    """
+    Benchmark TRLSD against DQN on one task family (or all) and write their CSV, PNG and JSON files.
+
+    :return: 0, or 128 + the signal's number when SIGINT or SIGTERM stopped it
+    """
+    out = usable_directory(args.out, "--out")
+    cache = None if args.no_cache else usable_directory(args.cache or out / "runs", "--cache")
+    families = list(FAMILIES) if args.family == "all" else [args.family]
+    return run_in_turn(
+        "benchmark", families, lambda family: benchmark_family(family, out, cache, args), cache
+    )
+
+
+def add_cache_options(command: argparse.ArgumentParser) -> None:
+    """``--cache DIR`` and ``--no-cache``, for the subcommands whose runs go through ``run_jobs``."""
+    run_cache = command.add_mutually_exclusive_group()
+    run_cache.add_argument(
+        "--cache",
+        default=None,
+        metavar="DIR",
+        help="directory of finished runs (default: OUT/runs; a killed command resumes from there): "
+        "finished runs are kept there and reused when the same command is run again with the same code; "
+        "--no-cache turns it off",
+    )
+    run_cache.add_argument("--no-cache", action="store_true", help="keep no finished runs and reuse none")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -201,17 +260,26 @@ def build_parser() -> argparse.ArgumentParser:
     reproduce.add_argument(
         "--workers", type=positive_int, default=os.cpu_count() or 1, help="processes (default: %(default)s)"
     )
-    run_cache = reproduce.add_mutually_exclusive_group()
-    run_cache.add_argument(
-        "--cache",
-        default=None,
-        metavar="DIR",
-        help="directory of finished runs (default: OUT/runs; a killed reproduction resumes from there): "
-        "finished runs are kept there and reused when the same command is run again with the same code; "
-        "--no-cache turns it off",
-    )
-    run_cache.add_argument("--no-cache", action="store_true", help="keep no finished runs and reuse none")
+    add_cache_options(reproduce)
     reproduce.set_defaults(run=reproduce_command)
+
+    benchmark = commands.add_parser(
+        "benchmark",
+        help="TRLSD against DQN and a random policy on a task family (CSV, PNG and JSON)",
+        description="Each method learns the same target tasks with the same seeds, after the same 25,000 "
+        "random source transitions of another task (rewards discarded), for the family's online budget.",
+    )
+    benchmark.add_argument("family", choices=[*FAMILIES, "all"], help="which task family")
+    benchmark.add_argument(
+        "--runs", type=positive_int, default=20, help="runs per method (default: %(default)s)"
+    )
+    benchmark.add_argument("--out", default="results", help="output directory (default: %(default)s)")
+    benchmark.add_argument("--seed", type=int, default=0, help="seed of the first run; run r uses seed + r")
+    benchmark.add_argument(
+        "--workers", type=positive_int, default=os.cpu_count() or 1, help="processes (default: %(default)s)"
+    )
+    add_cache_options(benchmark)
+    benchmark.set_defaults(run=benchmark_command)
     for script in ZOO_SCRIPTS:
         # Listed for --help; main() hands their arguments to the Zoo before this parser sees them.
         commands.add_parser(
