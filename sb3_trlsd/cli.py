@@ -19,6 +19,7 @@ import numpy as np
 
 import sb3_trlsd_envs
 from sb3_trlsd.experiments import FIGURES
+from sb3_trlsd.experiments.backends import BACKENDS
 from sb3_trlsd.experiments.benchmark import FAMILIES
 
 __all__ = ["main"]
@@ -173,7 +174,16 @@ def reproduce_figure(figure: str, out: Path, cache: Path | None, args: argparse.
     from sb3_trlsd.experiments import reproduce
     from sb3_trlsd.experiments.reporting import results_table
 
-    data = reproduce(figure, out, runs=args.runs, seed=args.seed, workers=args.workers, cache=cache)
+    data = reproduce(
+        figure,
+        out,
+        runs=args.runs,
+        seed=args.seed,
+        workers=args.workers,
+        cache=cache,
+        backend=args.backend,
+        address=args.address,
+    )
     files = ", ".join(str(out.absolute() / f"{figure}.{ext}") for ext in ("png", "csv", "json"))
     print(f"{figure} done in {data['wall_time_seconds']:.0f} s: {files}\n\n{results_table(data)}\n")
 
@@ -258,7 +268,23 @@ def build_parser() -> argparse.ArgumentParser:
     reproduce.add_argument("--out", default="results", help="output directory (default: %(default)s)")
     reproduce.add_argument("--seed", type=int, default=0, help="seed of the first run; run r uses seed + r")
     reproduce.add_argument(
-        "--workers", type=positive_int, default=os.cpu_count() or 1, help="processes (default: %(default)s)"
+        "--workers",
+        type=positive_int,
+        default=os.cpu_count() or 1,
+        help="processes, or CPUs of the local Ray cluster started without --address (default: %(default)s)",
+    )
+    reproduce.add_argument(
+        "--backend",
+        choices=BACKENDS,
+        default="loky",
+        help="where the runs go: loky, processes of this machine; ray, tasks of a Ray cluster (needs "
+        "sb3-trlsd[cluster]); the kept runs stay on this machine (default: %(default)s)",
+    )
+    reproduce.add_argument(
+        "--address",
+        default=None,
+        help="with --backend ray, the cluster to join: auto (started by 'ray start' here, or RAY_ADDRESS), "
+        "HOST:PORT or ray://HOST:PORT (default: start a local one)",
     )
     add_cache_options(reproduce)
     reproduce.set_defaults(run=reproduce_command)

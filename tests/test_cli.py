@@ -8,6 +8,8 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
@@ -119,17 +121,32 @@ def test_an_error_while_writing_is_one_line_and_status_1(tmp_path, monkeypatch, 
     assert_one_line_error(capsys, "No space left on device", "fig8.csv")
 
 
-def live_processes_of_group(group: int) -> list[int]:
-    """Processes of the process group ``group`` still alive (a zombie is dead, only not yet reaped)."""
-    alive = []
+@dataclass(frozen=True)
+class Process:
+    parent: int
+    group: int
+    command: str  # its command line, arguments separated by spaces
+
+
+def live_processes() -> dict[int, Process]:
+    """The processes of the machine still alive (a zombie is dead, only not yet reaped), by pid."""
+    alive = {}
     for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():  # self, thread-self, and what is not a process
+            continue
         try:
             fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
-        except (OSError, IndexError):  # not a process, or it ended meanwhile
+            command = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+        except (OSError, IndexError):  # it ended meanwhile
             continue
-        if int(fields[2]) == group and fields[0] != "Z":
-            alive.append(int(entry.name))
+        if fields[0] != "Z":
+            alive[int(entry.name)] = Process(int(fields[1]), int(fields[2]), command.strip())
     return alive
+
+
+def live_processes_of_group(group: int) -> list[int]:
+    """Processes of the process group ``group`` still alive."""
+    return [pid for pid, process in live_processes().items() if process.group == group]
 
 
 def assert_group_ends(group: int) -> None:
@@ -140,19 +157,28 @@ def assert_group_ends(group: int) -> None:
     assert not live_processes_of_group(group)
 
 
-def interrupt_reproduce(out: Path, signum: int, to_group: bool) -> tuple[int, str]:
+def interrupt_reproduce(
+    out: Path,
+    signum: int,
+    to_group: bool,
+    options: Sequence[str] = ("--workers", "2"),
+    env: dict[str, str] | None = None,
+) -> tuple[int, str]:
     """
-    Start a tiny ``reproduce fig8`` over 2 workers in a new process group, send ``signum`` once its first
-    run is kept (to the whole group, as Ctrl-C in a terminal does, or to the command alone, as ``kill``).
+    Start a tiny ``reproduce fig8`` in a new process group, send ``signum`` once its first run is kept (to
+    the whole group, as Ctrl-C in a terminal does, or to the command alone, as ``kill``).
 
+    :param options: the command's options besides its sizes and ``--out`` (default: 2 loky workers)
+    :param env: the command's environment (None: this process's)
     :return: the exit status and stderr, the command having ended within 10 s of the signal
     """
     command = [sys.executable, "-c", TINY_SB3_TRLSD, "reproduce", "fig8", "--runs", str(RUNS), "--seed", "0"]
     process = subprocess.Popen(
-        [*command, "--out", str(out), "--workers", "2"],
+        [*command, "--out", str(out), *options],
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,
         text=True,
+        env=env,
         start_new_session=True,  # its own group: the workers can be found, and Ctrl-C imitated
     )
     try:

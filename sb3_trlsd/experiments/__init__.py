@@ -11,7 +11,7 @@ from pathlib import Path
 
 __all__ = ["FIGURES", "reproduce"]
 
-# Figure -> (module of sb3_trlsd.experiments, function(out, runs, seed, workers, cache=None) -> summary).
+# Figure -> (module of sb3_trlsd.experiments, function(out, runs, seed, workers, cache, backend) -> summary).
 # Imported on use, so that listing the figures (the command line's help) does not load torch and SB3.
 FIGURES: dict[str, tuple[str, str]] = {
     "fig1": ("known_reward", "reproduce"),
@@ -32,6 +32,8 @@ def reproduce(
     seed: int = 0,
     workers: int = 1,
     cache: str | Path | None = None,
+    backend: str = "loky",
+    address: str | None = None,
 ) -> dict:
     """
     Run one figure's experiment and write its CSV, PNG and JSON to ``out``.
@@ -40,10 +42,14 @@ def reproduce(
     :param out: output directory (created if needed)
     :param runs: runs per method (None: the paper's size)
     :param seed: seed of the first run; run r uses ``seed + r``
-    :param workers: processes the runs are spread over
+    :param workers: processes the runs are spread over (with Ray: CPUs of the local cluster it starts)
     :param cache: directory where finished runs are kept, and reused when the same runs are asked of the
         same code again (a killed reproduction resumes there); None: every run is run, none is kept.
         Figures 2-4 (one short run each) do not use it.
+    :param backend: ``"loky"`` (processes of this machine) or ``"ray"`` (tasks of a Ray cluster, with the
+        extra ``sb3-trlsd[cluster]``); the kept runs stay on this machine either way
+    :param address: (ray) the cluster to join: ``"auto"``, ``"host:port"`` or ``"ray://host:port"``; None:
+        start a local one
     :return: the figure's JSON summary
     """
     if figure not in FIGURES:
@@ -52,8 +58,11 @@ def reproduce(
         raise ValueError(f"runs must be >= 1, got {runs}")
     if workers < 1:
         raise ValueError(f"workers must be >= 1, got {workers}")
+    from sb3_trlsd.experiments.backends import Backend
+
+    where = Backend(backend, address)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     module, function = FIGURES[figure]
     run = getattr(importlib.import_module(f"sb3_trlsd.experiments.{module}"), function)
-    return run(out, runs, seed, workers, cache=None if cache is None else Path(cache))
+    return run(out, runs, seed, workers, cache=None if cache is None else Path(cache), backend=where)

@@ -9,6 +9,7 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
+from sb3_trlsd.experiments.backends import LOKY, Backend
 from sb3_trlsd.experiments.figures import write_transfer_figure
 from sb3_trlsd.experiments.runner import Method, transfer_runs
 from sb3_trlsd_envs import CORNER_TASKS
@@ -22,15 +23,18 @@ METHODS = [
 ]
 
 
-def reproduce(out: Path, runs: int | None, seed: int, workers: int, cache: Path | None = None) -> dict:
+def reproduce(
+    out: Path, runs: int | None, seed: int, workers: int, cache: Path | None = None, backend: Backend = LOKY
+) -> dict:
     """
     Curves of the corner tasks, one panel per update ratio.
 
     :param cache: directory of finished runs, reused and completed (see ``run_jobs``); None: no cache
+    :param backend: where the runs go (see ``run_jobs``)
     """
     started = time.perf_counter()
     runs = runs or DEFAULT_RUNS
-    records = transfer_runs(METHODS, CORNER_TASKS, runs, seed, workers, cache=cache)
+    records = transfer_runs(METHODS, CORNER_TASKS, runs, seed, workers, cache=cache, backend=backend)
     return write_transfer_figure(
         out,
         "fig6",

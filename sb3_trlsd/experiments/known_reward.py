@@ -8,6 +8,7 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
+from sb3_trlsd.experiments.backends import LOKY, Backend
 from sb3_trlsd.experiments.figures import write_transfer_figure
 from sb3_trlsd.experiments.runner import Method, transfer_run, transfer_runs
 from sb3_trlsd_envs import N_TASKS
@@ -18,16 +19,19 @@ PICTURE_STEP = 30
 KNOWN = Method("known reward", reward_head="known", kappa=0.0)
 
 
-def reproduce(out: Path, runs: int | None, seed: int, workers: int, cache: Path | None = None) -> dict:
+def reproduce(
+    out: Path, runs: int | None, seed: int, workers: int, cache: Path | None = None, backend: Backend = LOKY
+) -> dict:
     """
     Curves of the 25 tasks with the known reward, next to one trajectory as in the paper's Figure 1 (the
     trajectory's run, a short one, is not cached).
 
     :param cache: directory of finished runs, reused and completed (see ``run_jobs``); None: no cache
+    :param backend: where the runs go (see ``run_jobs``)
     """
     started = time.perf_counter()
     runs = runs or DEFAULT_RUNS
-    records = transfer_runs([KNOWN], range(N_TASKS), runs, seed, workers, cache=cache)
+    records = transfer_runs([KNOWN], range(N_TASKS), runs, seed, workers, cache=cache, backend=backend)
     picture = transfer_run(KNOWN, PICTURE_TASK, seed, snapshot_at=[PICTURE_STEP]).snapshots[0]
     return write_transfer_figure(
         out,

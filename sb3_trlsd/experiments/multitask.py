@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from sb3_trlsd.experiments.backends import LOKY, Backend
 from sb3_trlsd.experiments.figures import new_figure, save_figure, update_counts
 from sb3_trlsd.experiments.reporting import (
     mean_and_standard_error,
@@ -102,17 +103,25 @@ def draw_figure(
     save_figure(figure, path, "Figure 8: multi-task learning of the 25 tasks, no source data")
 
 
-def reproduce(out: Path, runs: int | None, seed: int, workers: int, cache: Path | None = None) -> dict:
+def reproduce(
+    out: Path, runs: int | None, seed: int, workers: int, cache: Path | None = None, backend: Backend = LOKY
+) -> dict:
     """
     Reward per episode of each method, and when each is near solved.
 
     :param cache: directory of finished runs, reused and completed (see ``run_jobs``); None: no cache
+    :param backend: where the runs go (see ``run_jobs``)
     """
     started = time.perf_counter()
     runs = runs or DEFAULT_RUNS
     jobs = [((method, seed + run, TURNS, EPISODE_STEPS), {}) for method in METHODS for run in range(runs)]
     records = run_jobs(
-        multitask_run, jobs, workers, description=f"{len(METHODS)} methods x {runs} runs", cache=cache
+        multitask_run,
+        jobs,
+        workers,
+        description=f"{len(METHODS)} methods x {runs} runs",
+        cache=cache,
+        backend=backend,
     )
     episodes = {
         method.label: np.stack(

@@ -23,6 +23,7 @@ import gymnasium as gym
 import numpy as np
 
 from sb3_trlsd.data import collect_transitions
+from sb3_trlsd.experiments.backends import LOKY, Backend
 from sb3_trlsd.experiments.jobs import run_jobs
 from sb3_trlsd.trlsd import TRLSD
 from sb3_trlsd_envs import MAZE_ID
@@ -267,6 +268,7 @@ def transfer_runs(
     n_online: int | None = None,
     env_kwargs: dict[str, Any] | None = None,
     cache: Path | None = None,
+    backend: Backend = LOKY,
 ) -> dict[str, list[RunRecord]]:
     """
     ``runs`` transfer runs of each method, run ``r`` on ``tasks[r % len(tasks)]`` with seed ``seed + r``:
@@ -277,6 +279,7 @@ def transfer_runs(
     :param n_online: online transitions (None: ``ONLINE_TRANSITIONS``)
     :param env_kwargs: keyword arguments of the target task's env (paper's settings by default)
     :param cache: directory of finished runs, see ``run_jobs`` (None: none)
+    :param backend: where the runs go, see ``run_jobs``
     :return: method label -> its runs' records
     """
     # The sizes are resolved here, not in the workers, so that a cached run's key holds them.
@@ -291,6 +294,11 @@ def transfer_runs(
         for run in range(runs)
     ]
     records = run_jobs(
-        transfer_run, jobs, workers, description=f"{len(methods)} methods x {runs} runs", cache=cache
+        transfer_run,
+        jobs,
+        workers,
+        description=f"{len(methods)} methods x {runs} runs",
+        cache=cache,
+        backend=backend,
     )
     return {method.label: records[i * runs : (i + 1) * runs] for i, method in enumerate(methods)}

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from sb3_trlsd.experiments.backends import LOKY, Backend
 from sb3_trlsd.experiments.figures import new_figure, save_figure, update_counts
 from sb3_trlsd.experiments.reporting import summary, window_means, write_curves_csv, write_json
 from sb3_trlsd.experiments.runner import Method, transfer_runs
@@ -22,11 +23,14 @@ SIGMAS = (0.05, 0.1, 0.2, 0.5, 1.0)
 WINDOWS = [(0, 100), (0, 200), (0, 500), (0, 1000), (500, 1000)]
 
 
-def reproduce(out: Path, runs: int | None, seed: int, workers: int, cache: Path | None = None) -> dict:
+def reproduce(
+    out: Path, runs: int | None, seed: int, workers: int, cache: Path | None = None, backend: Backend = LOKY
+) -> dict:
     """
     Window averages against kappa and against sigma, with standard-error bars.
 
     :param cache: directory of finished runs, reused and completed (see ``run_jobs``); None: no cache
+    :param backend: where the runs go (see ``run_jobs``)
     """
     started = time.perf_counter()
     runs = runs or DEFAULT_RUNS
@@ -35,7 +39,7 @@ def reproduce(out: Path, runs: int | None, seed: int, workers: int, cache: Path 
         "sigma": [Method(f"sigma={sigma:g}", sigma=sigma) for sigma in SIGMAS if sigma != 0.2],
     }
     methods = sweeps["kappa"] + sweeps["sigma"]
-    records = transfer_runs(methods, range(N_TASKS), runs, seed, workers, cache=cache)
+    records = transfer_runs(methods, range(N_TASKS), runs, seed, workers, cache=cache, backend=backend)
     # kappa = 0.1, sigma = 0.2 is the same method in both sweeps: run once, shown in both.
     records["sigma=0.2"] = records["kappa=0.1"]
     curves = {label: np.stack([record.rewards for record in runs]) for label, runs in records.items()}

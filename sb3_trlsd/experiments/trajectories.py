@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from sb3_trlsd.experiments.backends import LOKY, Backend
 from sb3_trlsd.experiments.figures import draw_snapshot, new_figure, save_figure
 from sb3_trlsd.experiments.reporting import summary, write_curves_csv, write_json
 from sb3_trlsd.experiments.runner import Method, transfer_run
@@ -58,16 +59,22 @@ def _interval_rewards(rewards: np.ndarray, steps: Sequence[int]) -> dict[str, fl
     return {f"[{a}, {b})": float(rewards[a:b].mean()) for a, b in itertools.pairwise(bounds)}
 
 
-def reproduce_fig2(out: Path, runs: int | None, seed: int, workers: int, cache: Path | None = None) -> dict:
-    """Figure 2 (one short run: ``runs``, ``workers`` and ``cache`` do not apply)."""
+def reproduce_fig2(
+    out: Path, runs: int | None, seed: int, workers: int, cache: Path | None = None, backend: Backend = LOKY
+) -> dict:
+    """Figure 2 (one short run: ``runs``, ``workers``, ``cache`` and ``backend`` do not apply)."""
     return _reproduce("fig2", out, seed)
 
 
-def reproduce_fig3(out: Path, runs: int | None, seed: int, workers: int, cache: Path | None = None) -> dict:
-    """Figure 3 (one short run: ``runs``, ``workers`` and ``cache`` do not apply)."""
+def reproduce_fig3(
+    out: Path, runs: int | None, seed: int, workers: int, cache: Path | None = None, backend: Backend = LOKY
+) -> dict:
+    """Figure 3 (one short run: ``runs``, ``workers``, ``cache`` and ``backend`` do not apply)."""
     return _reproduce("fig3", out, seed)
 
 
-def reproduce_fig4(out: Path, runs: int | None, seed: int, workers: int, cache: Path | None = None) -> dict:
-    """Figure 4 (one short run: ``runs``, ``workers`` and ``cache`` do not apply)."""
+def reproduce_fig4(
+    out: Path, runs: int | None, seed: int, workers: int, cache: Path | None = None, backend: Backend = LOKY
+) -> dict:
+    """Figure 4 (one short run: ``runs``, ``workers``, ``cache`` and ``backend`` do not apply)."""
     return _reproduce("fig4", out, seed)

@@ -9,6 +9,7 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
+from sb3_trlsd.experiments.backends import LOKY, Backend
 from sb3_trlsd.experiments.figures import write_transfer_figure
 from sb3_trlsd.experiments.runner import Method, transfer_runs
 from sb3_trlsd_envs import N_TASKS
@@ -32,16 +33,18 @@ def reproduce(
     workers: int,
     methods: list[Method] = METHODS,
     cache: Path | None = None,
+    backend: Backend = LOKY,
 ) -> dict:
     """
     Curves of every method over the 25 tasks, in two panels: update ratio 2, and 1.2.
 
     :param methods: the curves (the paper's by default)
     :param cache: directory of finished runs, reused and completed (see ``run_jobs``); None: no cache
+    :param backend: where the runs go (see ``run_jobs``)
     """
     started = time.perf_counter()
     runs = runs or DEFAULT_RUNS
-    records = transfer_runs(methods, range(N_TASKS), runs, seed, workers, cache=cache)
+    records = transfer_runs(methods, range(N_TASKS), runs, seed, workers, cache=cache, backend=backend)
     ratio_2 = [m.label for m in methods if m.update_ratio == 2.0]
     ratio_12 = [m.label for m in methods if m.update_ratio != 2.0]
     return write_transfer_figure(

@@ -1,0 +1,249 @@
+"""
+The backends of ``run_jobs``: the ray backend against a real Ray cluster on this machine (``ray start
+--head`` on the loopback, 2 CPUs, a token of its own), through ``sb3-trlsd reproduce`` and ``run_jobs``;
+and the options' checks, which need no Ray.
+"""
+
+import _thread
+import importlib.util
+import os
+import secrets
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from collections.abc import Callable, Iterator
+from contextlib import suppress
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+
+from sb3_trlsd.cli import main
+from sb3_trlsd.experiments import backends, multitask, reproduce
+from sb3_trlsd.experiments.backends import Backend
+from sb3_trlsd.experiments.jobs import RunsInterrupted, run_jobs
+from sb3_trlsd.experiments.runner import multitask_run
+from tests.test_cli import (
+    EPISODE_STEPS,
+    RUNS,
+    TINY_SB3_TRLSD,
+    TURNS,
+    assert_one_line_error,
+    assert_says_what_it_kept,
+    interrupt_reproduce,
+    live_processes,
+    needs_proc,
+)
+
+# Not pytest.importorskip: importing Ray before the cluster's environment is set would bind this
+# process's driver to the machine's network address instead of the loopback.
+needs_ray = pytest.mark.skipif(
+    importlib.util.find_spec("ray") is None,
+    reason="Ray is not installed, the ray backend is not tested: pip install -e '.[cluster]'",
+)
+CLUSTER_START_SECONDS = 60
+
+
+@dataclass(frozen=True)
+class Cluster:
+    """A Ray cluster of this machine: the address to join, the environment to join it with, its head."""
+
+    address: str
+    env: dict[str, str]
+    head: int  # pid of ``ray start --block``, whose descendants are the cluster's processes
+
+
+def free_port() -> int:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return probe.getsockname()[1]
+
+
+def descendants(pid: int) -> dict[int, str]:
+    """The live processes descending from ``pid``, with their command lines."""
+    alive = live_processes()
+    children: dict[int, list[int]] = {}
+    for child, process in alive.items():
+        children.setdefault(process.parent, []).append(child)
+    found: dict[int, str] = {}
+    pending = list(children.get(pid, []))
+    while pending:
+        child = pending.pop()
+        found[child] = alive[child].command
+        pending.extend(children.get(child, []))
+    return found
+
+
+def running_tasks(cluster: Cluster) -> list[int]:
+    """Worker processes of ``cluster`` running a task of ``run_jobs`` (Ray titles them by function)."""
+    return [
+        pid for pid, command in descendants(cluster.head).items() if command.startswith("ray::cluster_call")
+    ]
+
+
+def wait_for(condition: Callable[[], bool], seconds: float) -> bool:
+    deadline = time.monotonic() + seconds
+    while not condition() and time.monotonic() < deadline:
+        time.sleep(0.05)
+    return condition()
+
+
+@pytest.fixture(scope="module")
+def cluster() -> Iterator[Cluster]:
+    """
+    ``ray start --head --block`` on 127.0.0.1 with 2 CPUs; stopped at the end by ending that process (and,
+    should any survive it, the processes it started, by pid: never ``ray stop``, which would end every Ray
+    cluster of the machine). This process's environment is the cluster's while the module runs.
+    """
+    env = {
+        "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER": "0",  # loopback addresses only, as Ray does on macOS
+        "RAY_AUTH_MODE": "token",
+        "RAY_AUTH_TOKEN": secrets.token_hex(32),
+        "RAY_USAGE_STATS_ENABLED": "0",
+    }
+    port = free_port()
+    temp = Path(tempfile.mkdtemp(prefix="ray-", dir="/tmp"))  # short: Ray's socket paths are limited
+    log = temp / "head.log"
+    command = [sys.executable, "-m", "ray.scripts.scripts", "start", "--head", "--block", f"--port={port}"]
+    options = ["--num-cpus=2", "--include-dashboard=false", "--disable-usage-stats", f"--temp-dir={temp}"]
+    with pytest.MonkeyPatch.context() as patch, open(log, "w") as output:
+        for name, value in env.items():
+            patch.setenv(name, value)
+        head = subprocess.Popen(
+            [*command, *options], stdout=output, stderr=subprocess.STDOUT, start_new_session=True
+        )
+        try:
+            started = wait_for(
+                lambda: "Ray runtime started" in log.read_text() or head.poll() is not None,
+                CLUSTER_START_SECONDS,
+            )
+            assert started and head.poll() is None, f"ray start failed:\n{log.read_text()}"
+            yield Cluster(f"127.0.0.1:{port}", dict(os.environ), head.pid)
+        finally:
+            left = descendants(head.pid)
+            head.terminate()  # --block: ends the processes it started
+            try:
+                head.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                head.kill()
+                head.wait()
+            alive = live_processes()
+            for pid in (
+                pid for pid, command in left.items() if pid in alive and alive[pid].command == command
+            ):
+                # the same pid and command line: one of the cluster's, not a process that took a freed pid
+                with suppress(ProcessLookupError):
+                    os.kill(pid, signal.SIGKILL)
+            shutil.rmtree(temp, ignore_errors=True)
+
+
+@pytest.fixture
+def driver(cluster: Cluster) -> Iterator[Cluster]:
+    """This process as a driver of ``cluster`` (``run_jobs`` joins it), disconnected afterwards."""
+    yield cluster
+    import ray
+
+    ray.shutdown()
+
+
+@needs_ray
+def test_a_ray_reproduction_writes_the_csv_of_loky(cluster, tmp_path, monkeypatch):
+    """
+    Runs are pure functions of their seeds: on the cluster's workers they must give the figure of this
+    machine's processes (before, a reproduction could not leave this machine).
+    """
+    command = ["reproduce", "fig8", "--runs", str(RUNS), "--seed", "0", "--out"]
+    ray_out, loky_out = tmp_path / "ray", tmp_path / "loky"
+    on_ray = [*command, str(ray_out), "--backend", "ray", "--address", cluster.address]
+    result = subprocess.run(
+        [sys.executable, "-c", TINY_SB3_TRLSD, *on_ray],
+        env=cluster.env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert result.returncode == 0, result.stderr
+    assert "fig8 done" in result.stdout
+    assert f"Connecting to existing Ray cluster at address: {cluster.address}" in result.stderr
+    assert len(list(ray_out.glob("runs/*.npz"))) == 3 * RUNS  # kept by the driver, on its disk
+
+    monkeypatch.setattr(multitask, "TURNS", TURNS)
+    monkeypatch.setattr(multitask, "EPISODE_STEPS", EPISODE_STEPS)
+    assert main([*command, str(loky_out), "--workers", "1"]) == 0
+    assert (ray_out / "fig8.csv").read_text() == (loky_out / "fig8.csv").read_text()
+
+
+@needs_ray
+@needs_proc
+@pytest.mark.parametrize(
+    ("signum", "to_group"), [(signal.SIGINT, True), (signal.SIGTERM, False)], ids=["ctrl-c", "sigterm"]
+)
+def test_an_interrupted_ray_reproduction_says_what_it_kept(cluster, tmp_path, signum, to_group):
+    """Ray must not take over the command's signals: the same status and message as with loky."""
+    out = tmp_path / "interrupted"
+    options = ["--backend", "ray", "--address", cluster.address]
+    status, error = interrupt_reproduce(out, signum, to_group, options=options, env=cluster.env)
+    assert status == 128 + signum, error
+    assert_says_what_it_kept(error, out)
+    assert wait_for(lambda: not running_tasks(cluster), 5), "tasks of the command still run on the cluster"
+
+
+@needs_ray
+@needs_proc
+def test_an_interrupt_cancels_the_tasks_on_the_cluster(driver, tmp_path):
+    """
+    A driver that lives on (a notebook's Ctrl-C) must not leave its tasks running for seconds on the
+    cluster, nor wait for them: RunsInterrupted at once, and no task of it left within 2 s.
+    """
+    jobs = [((multitask.METHODS[1], seed, 4, 50), {}) for seed in range(6)]  # about 10 s each
+    interrupted_at: list[float] = []
+
+    def interrupt_once_a_task_runs() -> None:
+        if wait_for(lambda: bool(running_tasks(driver)), 60):
+            interrupted_at.append(time.monotonic())
+            _thread.interrupt_main()
+
+    threading.Thread(target=interrupt_once_a_task_runs, daemon=True).start()
+    with pytest.raises(RunsInterrupted) as interrupted:
+        run_jobs(multitask_run, jobs, cache=tmp_path, backend=Backend("ray", driver.address))
+    assert interrupted_at and time.monotonic() - interrupted_at[0] < 1
+    assert (interrupted.value.kept, interrupted.value.total) == (0, len(jobs))
+    assert wait_for(lambda: not running_tasks(driver), 2), "the cancelled tasks still run"
+
+
+@needs_ray
+def test_a_node_running_other_code_than_the_driver_is_refused(driver, tmp_path, monkeypatch):
+    """Its runs would be kept under the key of the driver's code: a stale figure, and nothing to say so."""
+    monkeypatch.setattr(backends, "code_fingerprint", lambda module: "0" * 64)  # the driver's code, edited
+    jobs = [((multitask.METHODS[0], seed, TURNS, EPISODE_STEPS), {}) for seed in range(2)]
+    with pytest.raises(ValueError, match=r"runs other code than the driver .* same sb3-trlsd on every node"):
+        run_jobs(multitask_run, jobs, cache=tmp_path, backend=Backend("ray", driver.address))
+    assert not list(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize(
+    ("arguments", "fragments"),
+    [
+        (["--backend", "ray"], ["the ray backend needs Ray", "pip install 'sb3-trlsd[cluster]'"]),
+        (["--address", "auto"], ["an address is for the ray backend, not 'loky'", "'auto'"]),
+    ],
+    ids=["ray not installed", "address without ray"],
+)
+def test_a_backend_that_cannot_be_used_is_one_line_and_status_2(
+    tmp_path, monkeypatch, capsys, arguments, fragments
+):
+    """Found before any run, as other bad options are, not as a traceback once the first runs are done."""
+    monkeypatch.setitem(sys.modules, "ray", None)  # what ``import ray`` meets where Ray is not installed
+    assert main(["reproduce", "fig8", "--out", str(tmp_path), *arguments]) == 2
+    assert_one_line_error(capsys, *fragments)
+    assert not list((tmp_path / "runs").iterdir())
+
+
+def test_reproduce_names_the_backends_it_accepts(tmp_path):
+    with pytest.raises(ValueError, match="backend must be one of loky, ray, got 'dask'"):
+        reproduce("fig8", tmp_path, backend="dask")
