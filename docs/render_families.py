@@ -1,4 +1,4 @@
-"""Draw the pictures of docs/families.md: docs/four_rooms.png and docs/goal_cartpole.png.
+"""Draw the pictures of the README's family sections: docs/four_rooms.png and docs/goal_cartpole.png.
 
 Run from the repository's root: ``python docs/render_families.py`` (seed 0, a few seconds).
 """
