@@ -165,8 +165,24 @@ def run_in_turn(
                 run_one(name)
         except KeyboardInterrupt as interrupt:
             print(f"sb3-trlsd {command}: {interruption_message(interrupt, name, cache)}", file=sys.stderr)
-            return 128 + (received[0] if received else signal.SIGINT)
+            status = 128 + (received[0] if received else signal.SIGINT)
+            leave_ray_at_once(status)
+            return status
     return 0
+
+
+def leave_ray_at_once(status: int) -> None:
+    """
+    After an interruption with the ray backend, exit now with ``status``: Ray's core worker can abort the
+    process at its normal exit on the late replies of the tasks just cancelled ("Tried to complete task that
+    was not pending", seen with ray 2.60), which would turn 130 or 143 into 1. The cluster drops the tasks of
+    a driver that has gone. Without Ray connected, nothing happens.
+    """
+    ray = sys.modules.get("ray")
+    if ray is not None and ray.is_initialized():
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(status)
 
 
 def reproduce_figure(figure: str, out: Path, cache: Path | None, args: argparse.Namespace) -> None:
