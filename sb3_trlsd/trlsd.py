@@ -3,54 +3,47 @@
 from __future__ import annotations
 
 import os
-import warnings
 from collections.abc import Callable, Sequence
 from typing import Any, ClassVar, TypeVar
 
 import gymnasium as gym
 import numpy as np
 import torch as th
-from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.noise import ActionNoise
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.policies import BasePolicy
-from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
+from stable_baselines3.common.type_aliases import GymEnv, Schedule
 
 from sb3_trlsd.buffers import SharedDynamicsReplayBuffer
 from sb3_trlsd.builders import new_reward_head, shared_features, state_box
-from sb3_trlsd.callbacks import log_hyperparameters, log_refit
+from sb3_trlsd.callbacks import log_refit
 from sb3_trlsd.data import Transitions
 from sb3_trlsd.feature_maps import FeatureMap
 from sb3_trlsd.fqi import DEFAULT_TOL
 from sb3_trlsd.observations import split_observation
-from sb3_trlsd.persistence import SavesSharedBuffer, empty_rows
+from sb3_trlsd.persistence import empty_rows
 from sb3_trlsd.policies import LinearPolicy, MlpPolicy, TaskQPolicy
 from sb3_trlsd.reward_heads import RewardFn, RewardHead
-from sb3_trlsd.settings import check_arguments, hyperparameters_of, resolve_policy
-from sb3_trlsd.source_data import load_source_once
+from sb3_trlsd.sb3_interface import TRLSDInterface
+from sb3_trlsd.settings import check_arguments, resolve_policy
 from sb3_trlsd.task_learner import TaskLearner
 
 __all__ = ["TRLSD"]
 
 SelfTRLSD = TypeVar("SelfTRLSD", bound="TRLSD")
 PICTURE_TRAIL = 50  # states of a task's latest trajectory drawn in its TensorBoard picture
-UNFITTED_TASK = (
-    "task {task} has never been fitted: its Q-function is 0 and predict returns action 0 for every state; "
-    "learn on it first, or call model.update_policy({task})"
-)
 
 
-class TRLSD(SavesSharedBuffer, OffPolicyAlgorithm):
+class TRLSD(TRLSDInterface, OffPolicyAlgorithm):
     """
     Transfer Reinforcement Learning with Shared Dynamics (TRLSD).
 
     Paper: Laroche & Barlier, "Transfer Reinforcement Learning with Shared Dynamics", AAAI 2017.
-    Every transition of every task goes to one shared replay buffer; for a target task, the rewards of
-    the whole buffer are replaced by an optimistic reward proxy R~ = R^ + CI learnt from that task's own
-    samples (section 3), and the task's Q-function is refitted on that relabelled set by Fitted-Q
-    Iteration (Algorithm 1): at the task's first step, then whenever the CI at an encountered state has
-    been divided by ``update_ratio`` since its last refit. Each task's learning state is a ``TaskLearner``;
-    ``save`` keeps them and the buffer's rows, so that a loaded model goes on as an uninterrupted one.
+    Every transition of every task goes to one shared buffer; for a target task, the buffer's rewards are
+    replaced by an optimistic proxy R~ = R^ + CI learnt from that task's own samples (section 3), and its Q
+    is refitted on that relabelled set by Fitted-Q Iteration (Algorithm 1): at its first step, then whenever
+    the CI at an encountered state has been divided by ``update_ratio``. Each task's learning state is a
+    ``TaskLearner``; ``TRLSDInterface`` adds SB3's save/load (with the buffer's rows), learn and predict.
 
     Defaults are the paper's (section 4) where it gives them: kappa and sigma of the continuous setting,
     ``update_ratio=2``, lambda = 1 for the reward regression, 5x5 RBFs of width 0.2. The paper does not
@@ -61,44 +54,34 @@ class TRLSD(SavesSharedBuffer, OffPolicyAlgorithm):
     :param env: the environment (Gymnasium env, VecEnv with one env, or registered id); observations are a
         state Box, or a ``{"state": Box, "task": Discrete}`` Dict for several tasks
     :param gamma: discount factor
-    :param reward_head: how R~ is learnt: ``"ridge"`` (continuous setting, eq. 9), ``"tabular"`` (per-cell
-        means on a grid of cells over the state Box, eq. 10; ``reward_head_kwargs`` ``cells_per_dim``, or
-        ``cell_fn`` and ``n_cells`` for a discretisation of one's own), ``"corners"`` (tabular, with the
-        prior that only the grid's corner cells are rewarded), ``"known"`` (the true expected reward,
-        CI = 0), or a ``RewardHead`` instance copied for each task
+    :param reward_head: ``"ridge"`` (eq. 9), ``"tabular"`` (per-cell means, eq. 10, on a grid over the state
+        box or a ``cell_fn``), ``"corners"`` (only the grid's corner cells pay), ``"known"`` (CI = 0), or a
+        ``RewardHead`` copied for each task
     :param kappa: optimism (eq. 9, 10); 0 is the non-optimistic method of Atkeson & Santamaria
-    :param sigma: width of the similarity in the neighbouring weight W (eq. 8): for eq. 6 a fraction of the
-        state box (one number or one per dimension; None: 0.04 in 2-D, the paper's 0.2 on the maze, wider in
-        more dimensions, see ``feature_maps.default_kernel_width``), for eq. 7 a distance between feature
-        vectors (None: 0.2)
+    :param sigma: width of the similarity in W (eq. 8): for eq. 6 a fraction of the state box, one or one per
+        dimension (None: ``default_kernel_width(d)``, 0.04 in 2-D: the paper's 0.2 on the maze); for eq. 7
+        a distance between feature vectors (None: 0.2)
     :param similarity: ``"state"`` (eq. 6, on states) or ``"features"`` (eq. 7, on RBF features)
-    :param update_ratio: a task's Q is refitted when the CI at an encountered state has been divided by
-        this since the last refit (> 1)
+    :param update_ratio: refit a task when the CI at an encountered state has been divided by this (> 1)
     :param fqi_max_iterations: cap on Fitted-Q iterations per refit (None: the policy's own default)
     :param fqi_tol: Fitted-Q stops when the parameters move by less than this, relative to their scale
-    :param feature_map: the features Phi, shared by the linear policy and the ridge heads: ``"rbf"`` (the
-        paper's grid of Gaussian RBFs, eq. 11), ``"fourier"`` (random Fourier features, linear in the
-        dimension), ``"auto"`` (the grid up to 125 centres, else Fourier) or a ``FeatureMap``
+    :param feature_map: Phi, shared by the linear policy and the ridge heads: ``"rbf"`` (eq. 11's grid),
+        ``"fourier"`` (linear in the dimension), ``"auto"`` (the grid up to 125 centres) or a ``FeatureMap``
     :param rbf_per_dim: RBF centres per state dimension of the grid
-    :param rbf_sigma: width of the features as a fraction of the state box (one number or one per
-        dimension); None: a fifth of the grid's spacing (0.04, the paper's 0.2 on the maze), or
-        ``default_kernel_width(d)`` for Fourier features
+    :param rbf_sigma: width of the features, a fraction of the state box (one, or one per dimension); None:
+        a fifth of the grid's spacing (the paper's 0.2 on the maze), ``default_kernel_width(d)`` for Fourier
     :param fourier_features: the number of Fourier features (None: 50 per state dimension)
-    :param state_bounds: ``(low, high)`` of the states, for an unbounded (or loosely bounded) state Box;
-        None: the Box's bounds, which must then be finite
+    :param state_bounds: ``(low, high)`` of the states for an unbounded Box (None: the Box's, finite)
     :param reward_fn: ``reward_fn(states (n, d), task) -> (n,)``, the expected reward for the ``"known"``
         head; by default the env's ``expected_reward``. Not saved: give it again to ``load``
     :param reward_head_kwargs: extra arguments of the reward heads (e.g. ``w_floor``, ``r_max``)
-    :param source_transitions: source set loaded (rewards discarded) at the start of the first ``learn``:
-        a number of transitions to collect with a random policy from a copy of the env (``gym.make`` of
-        its spec; the paper's 25,000), or the path of a ``.npz`` saved by ``Transitions.save``; None: none
-        (``load_transitions`` does the same by hand). This is how a config file gives the source set.
+    :param source_transitions: source set loaded (rewards discarded) at the first ``learn``: a number of
+        random transitions (the paper's 25,000) from ``source_env``, or the path of a ``Transitions`` .npz
     :param source_seed: seed of the collection of ``source_transitions`` (None: ``seed``)
-    :param source_env: the env ``source_transitions=<number>`` collects from (an env, or a function making
-        one); None: a copy of the model's env as given, its wrappers kept
-    :param log_picture_every: with TensorBoard and an env that draws its tasks (``task_picture``, as the
-        maze does), log a picture of a task at its first refit and then every this many of its refits;
-        0 disables it
+    :param source_env: an env (or a function making one) to collect them from; None: a copy of the env as
+        given, its wrappers kept
+    :param log_picture_every: with TensorBoard and an env that draws tasks (``task_picture``), a picture at a
+        task's first refit and every this many refits; 0: none
     :param learning_rate: learning rate of the MLP policy's regression steps (unused by the linear one)
     :param buffer_size: size of the shared replay buffer
     :param learning_starts: steps of uniformly random actions before the first refit
@@ -372,60 +355,3 @@ class TRLSD(SavesSharedBuffer, OffPolicyAlgorithm):
         learner.refitted(n_rows=self._fit_rows.n_transitions)
         self._n_updates += 1
         log_refit(self, learner, result, rewards)
-
-    # ---------------------------------------------------------- SB3 interface
-    def _setup_learn(
-        self,
-        total_timesteps: int,
-        callback: MaybeCallback = None,
-        reset_num_timesteps: bool = True,
-        tb_log_name: str = "run",
-        progress_bar: bool = False,
-    ) -> tuple[int, BaseCallback]:
-        total_timesteps, callback = super()._setup_learn(
-            total_timesteps, callback, reset_num_timesteps, tb_log_name, progress_bar
-        )
-        log_hyperparameters(self)
-        return total_timesteps, callback
-
-    def hyperparameters(self) -> dict[str, int | float | str | bool]:
-        """The settings of this run, as TensorBoard's HParams tab shows them."""
-        return hyperparameters_of(self)
-
-    def learn(
-        self: SelfTRLSD,
-        total_timesteps: int,
-        callback: MaybeCallback = None,
-        log_interval: int = 4,
-        tb_log_name: str = "TRLSD",
-        reset_num_timesteps: bool = True,
-        progress_bar: bool = False,
-    ) -> SelfTRLSD:
-        load_source_once(self)
-        super().learn(
-            total_timesteps=total_timesteps,
-            callback=callback,
-            log_interval=log_interval,
-            tb_log_name=tb_log_name,
-            reset_num_timesteps=reset_num_timesteps,
-            progress_bar=progress_bar,
-        )
-        # SB3 dumps the logs every log_interval episodes: a run's last values are kept too.
-        self.dump_logs()
-        return self
-
-    def predict(
-        self,
-        observation: np.ndarray | dict[str, np.ndarray],
-        state: tuple[np.ndarray, ...] | None = None,
-        episode_start: np.ndarray | None = None,
-        deterministic: bool = False,
-    ) -> tuple[np.ndarray, tuple[np.ndarray, ...] | None]:
-        """SB3's ``predict``; a task whose Q-function was never fitted is warned about, once per task."""
-        _, tasks = split_observation(observation, self.replay_buffer.obs_shape[0])
-        for task in np.unique(tasks):
-            learner = self.task_learners.get(int(task))
-            if (learner is None or not learner.fitted) and int(task) not in self._warned_unfitted:
-                self._warned_unfitted.add(int(task))
-                warnings.warn(UNFITTED_TASK.format(task=task), stacklevel=2)
-        return super().predict(observation, state, episode_start, deterministic)
