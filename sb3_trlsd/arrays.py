@@ -9,20 +9,25 @@ __all__ = ["GrowableArray", "GrowableColumns"]
 
 
 class GrowableArray:
-    """Rows appended in amortised O(1) (capacity doubling) with a view on the rows stored so far."""
+    """
+    Rows appended in amortised O(1) (capacity doubling) with a view on the rows stored so far.
 
-    def __init__(self, width: int):
-        self._data = np.zeros((16, width))
+    :param width: the row width
+    :param dtype: the storage type (float64 by default)
+    """
+
+    def __init__(self, width: int, dtype: npt.DTypeLike = np.float64):
+        self._data = np.zeros((16, width), dtype=dtype)
         self._size = 0
 
     def __len__(self) -> int:
         return self._size
 
     def append(self, rows: np.ndarray) -> None:
-        rows = np.asarray(rows, dtype=np.float64).reshape(-1, self._data.shape[1])
+        rows = np.asarray(rows, dtype=self._data.dtype).reshape(-1, self._data.shape[1])
         needed = self._size + len(rows)
         if needed > len(self._data):
-            grown = np.zeros((max(needed, 2 * len(self._data)), self._data.shape[1]))
+            grown = np.zeros((max(needed, 2 * len(self._data)), self._data.shape[1]), self._data.dtype)
             grown[: self._size] = self._data[: self._size]
             self._data = grown
         self._data[self._size : needed] = rows
