@@ -11,6 +11,7 @@ from abc import ABC, abstractmethod
 from collections.abc import Callable
 
 import numpy as np
+import torch as th
 
 from sb3_trlsd.arrays import GrowableArray
 from sb3_trlsd.buffers import BufferCursor, SharedDynamicsReplayBuffer
@@ -93,24 +94,47 @@ class LinearFitRows(FitRows):
 
 
 class TransitionRows(FitRows):
-    """The rows as arrays of states, actions, next states and terminations (what the MLP's FQI takes)."""
+    """
+    The rows as a network's Fitted-Q takes them (``fit_mlp_fqi``): float32 network inputs of s and s', the
+    actions and whether s' is absorbing, converted once as they arrive. ``tensors`` shares their memory, so
+    a refit rebuilds nothing from the buffer's arrays.
 
-    def __init__(self, state_dim: int):
-        self.state_dim = state_dim
-        self._rows = GrowableArray(2 * state_dim + 2)  # [s, a, s', terminated]
+    :param inputs: the network input of states, (n, d) -> (n, input_dim) (e.g. states rescaled to [-1, 1])
+    :param input_dim: the width of the inputs
+    """
+
+    def __init__(self, inputs: Callable[[np.ndarray], np.ndarray], input_dim: int):
+        self.inputs = inputs
+        self.input_dim = input_dim
+        self._clear()
         super().__init__()
 
     @property
     def n_transitions(self) -> int:
-        return len(self._rows)
+        return len(self._actions)
 
     def _clear(self) -> None:
-        self._rows = GrowableArray(2 * self.state_dim + 2)
+        self._inputs = GrowableArray(self.input_dim, np.float32)
+        self._next_inputs = GrowableArray(self.input_dim, np.float32)
+        self._actions = GrowableArray(1, np.int64)
+        self._terminated = GrowableArray(1, bool)
 
     def _extend(self, rows: Transitions) -> None:
-        self._rows.append(np.column_stack([rows.states, rows.actions, rows.next_states, rows.terminations]))
+        self._inputs.append(self.inputs(rows.states))
+        self._next_inputs.append(self.inputs(rows.next_states))
+        self._actions.append(rows.actions)
+        self._terminated.append(rows.terminations)
 
-    def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """:return: states (n, d), actions (n,), next states (n, d), terminated (n,)"""
-        rows, d = self._rows.view(), self.state_dim
-        return rows[:, :d], rows[:, d].astype(np.int64), rows[:, d + 1 : 2 * d + 1], rows[:, -1].astype(bool)
+    def tensors(self) -> tuple[th.Tensor, th.Tensor, th.Tensor, th.Tensor]:
+        """
+        The rows as CPU tensors that share the stored arrays (valid until the next ``sync``).
+
+        :return: inputs of s (n, input_dim) float32, actions (n,) int64, inputs of s' (n, input_dim) float32,
+            terminated (n,) bool
+        """
+        return (
+            th.from_numpy(self._inputs.view()),
+            th.from_numpy(self._actions.view()[:, 0]),
+            th.from_numpy(self._next_inputs.view()),
+            th.from_numpy(self._terminated.view()[:, 0]),
+        )

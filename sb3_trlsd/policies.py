@@ -254,18 +254,18 @@ class MlpPolicy(TaskQPolicy):
             return self.q_networks[task](inputs).cpu().numpy().astype(np.float64)
 
     def new_fit_rows(self) -> TransitionRows:
-        return TransitionRows(self.state_space.shape[0])
+        return TransitionRows(self._inputs, self.state_space.shape[0])
 
     def _fit(
         self, task: int, rows: FitRows, rewards: np.ndarray, gamma: float, max_iterations: int, tol: float
     ) -> FQIResult:
         assert isinstance(rows, TransitionRows)
-        states, actions, next_states, terminated = rows.arrays()
+        inputs, actions, next_inputs, terminated = rows.tensors()
         return fit_mlp_fqi(
-            self._inputs(states),
+            inputs,
             actions,
             rewards,
-            self._inputs(next_states),
+            next_inputs,
             terminated,
             network=self.q_networks[task],
             gamma=gamma,
