@@ -100,7 +100,7 @@ class TaskQPolicy(BasePolicy):
         :param rewards: the relabelled rewards, (rows.n_transitions,)
         :param gamma: discount factor
         :param max_iterations: cap on the fitted iterations (None: ``default_max_iterations``)
-        :param tol: relative stopping tolerance of the linear solver (the MLP runs all its iterations)
+        :param tol: relative stopping tolerance of the fitted iterations
         :return: iterations and final Bellman residual
         """
         iterations = self.default_max_iterations if max_iterations is None else max_iterations
@@ -194,14 +194,19 @@ class LinearPolicy(TaskQPolicy):
 
 class MlpPolicy(TaskQPolicy):
     """
-    A small network Q_tau(s, .) per task, one output per action, on states rescaled to [-1, 1].
+    A small network Q_tau(s, .) per task, one output per action, on states rescaled to [-1, 1], refitted by
+    ``fit_mlp_fqi``: a few Adam epochs on the hidden layers, then linear FQI of the output layer on their
+    features, over the whole relabelled set. Each refit starts from the task's network and Adam state as the
+    previous one left them (both saved with the policy).
 
     :param observation_space: a Box of states (finite bounds) or a ``{"state", "task"}`` Dict
     :param action_space: a Discrete action space
-    :param lr_schedule: Adam learning rate of the regression steps
-    :param net_arch: hidden layer sizes
-    :param epochs_per_iteration: regression epochs on the targets of each fitted iteration
-    :param batch_size: minibatch size of the regression
+    :param lr_schedule: Adam learning rate of the hidden layers' gradient steps
+    :param net_arch: hidden layer sizes (the output layer is linear in the last one's features)
+    :param epochs_per_fit: epochs of Adam steps on the hidden layers per refit (0: fixed random features)
+    :param batch_size: minibatch size of those steps
+    :param fqi_ridge: Tikhonov regularisation of the output layer's per-action projections (see
+        ``LinearPolicy``)
     :param state_bounds: ``(low, high)`` the states are rescaled by (None: the state Box's; TRLSD passes its
         ``state_bounds`` or the Box's)
     """
@@ -214,14 +219,16 @@ class MlpPolicy(TaskQPolicy):
         action_space: spaces.Space,
         lr_schedule: Schedule,
         net_arch: tuple[int, ...] | list[int] = (64, 64),
-        epochs_per_iteration: int = 2,
-        batch_size: int = 512,
+        epochs_per_fit: int = 1,
+        batch_size: int = 2048,
+        fqi_ridge: float = DEFAULT_RIDGE,
         state_bounds: tuple[np.ndarray, np.ndarray] | None = None,
     ):
         super().__init__(observation_space, action_space, lr_schedule)
         self.net_arch = tuple(net_arch)
-        self.epochs_per_iteration = epochs_per_iteration
+        self.epochs_per_fit = epochs_per_fit
         self.batch_size = batch_size
+        self.fqi_ridge = fqi_ridge
         self.state_bounds = state_bounds
         bounds = (self.state_space.low, self.state_space.high) if state_bounds is None else state_bounds
         low, high = (np.asarray(bound, dtype=np.float64) for bound in bounds)
@@ -234,16 +241,31 @@ class MlpPolicy(TaskQPolicy):
             make_q_network(self.state_space.shape[0], self.n_actions, hidden=self.net_arch)
             for _ in range(self.n_tasks)
         )
+        # One Adam for every network: a refit steps only its task's parameters (the others have no gradient),
+        # each parameter with its own moments and step count.
+        self.optimizer = th.optim.Adam(self.parameters(), lr=lr_schedule(1.0))
+        # The minibatch order, seeded from the global generator (which TRLSD's seed sets) and saved.
+        self.generator = th.Generator().manual_seed(int(th.randint(2**62, ())))
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
         data = super()._get_constructor_parameters()
         data.update(
             net_arch=self.net_arch,
-            epochs_per_iteration=self.epochs_per_iteration,
+            epochs_per_fit=self.epochs_per_fit,
             batch_size=self.batch_size,
+            fqi_ridge=self.fqi_ridge,
             state_bounds=self.state_bounds,
         )
         return data
+
+    def get_extra_state(self) -> dict[str, Any]:
+        """Adam's state and the minibatch generator's go into the policy's ``state_dict``: a loaded model
+        refits as this one would."""
+        return {"optimizer": self.optimizer.state_dict(), "generator": self.generator.get_state()}
+
+    def set_extra_state(self, state: dict[str, Any]) -> None:
+        self.optimizer.load_state_dict(state["optimizer"])
+        self.generator.set_state(state["generator"])
 
     def _inputs(self, states: np.ndarray) -> np.ndarray:
         return (states - self.state_centre) / self.state_half_width
@@ -269,8 +291,11 @@ class MlpPolicy(TaskQPolicy):
             terminated,
             network=self.q_networks[task],
             gamma=gamma,
-            iterations=max_iterations,
-            epochs_per_iteration=self.epochs_per_iteration,
+            optimizer=self.optimizer,
+            max_iterations=max_iterations,
+            tol=tol,
+            epochs=self.epochs_per_fit,
             batch_size=self.batch_size,
-            learning_rate=self.lr_schedule(1.0),
+            ridge=self.fqi_ridge,
+            generator=self.generator,
         )

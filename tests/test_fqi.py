@@ -1,9 +1,11 @@
 """Fitted-Q Iteration against value iteration on a small deterministic MDP, and its solver's bookkeeping."""
 
+import gymnasium as gym
 import numpy as np
 import pytest
 import torch as th
 
+from sb3_trlsd import TRLSD
 from sb3_trlsd.arrays import GrowableColumns
 from sb3_trlsd.fqi import (
     LinearFQISolver,
@@ -12,6 +14,7 @@ from sb3_trlsd.fqi import (
     linear_q_values,
     make_q_network,
 )
+from tests.conftest import MAZE_ID
 
 N_STATES, N_ACTIONS, GAMMA = 6, 3, 0.9
 
@@ -222,41 +225,115 @@ def test_bad_fqi_inputs_are_refused_by_name(call, argument):
         call(solver)
 
 
-def fit_small_network(mdp, seed, iterations, epochs):
-    th.manual_seed(seed)
-    network = make_q_network(N_STATES, N_ACTIONS, hidden=(32,))
+def fit_small_network(mdp, seed, network=None, rewards=None, **settings):
+    """``fit_mlp_fqi`` on the small MDP (one-hot inputs), from a network seeded by ``seed`` unless given."""
+    if network is None:
+        th.manual_seed(seed)
+        network = make_q_network(N_STATES, N_ACTIONS, hidden=(32,))
+    phi, actions, mdp_rewards, next_phi, terminated = data_of(mdp)
+    settings = {
+        "batch_size": 12,
+        "learning_rate": 1e-2,
+        "tol": 1e-8,
+        "max_iterations": 2000,
+        "ridge": 1e-5,
+        **settings,
+    }
     result = fit_mlp_fqi(
-        *data_of(mdp),
+        phi,
+        actions,
+        mdp_rewards if rewards is None else rewards,
+        next_phi,
+        terminated,
         network=network,
         gamma=GAMMA,
-        iterations=iterations,
-        epochs_per_iteration=epochs,
-        batch_size=12,
-        learning_rate=1e-2,
         generator=th.Generator().manual_seed(seed),
+        **settings,
     )
     return network, result
 
 
-def test_mlp_fqi_finds_the_greedy_actions_of_q_star(mdp):
+def q_of_states(network):
+    with th.no_grad():
+        return network(th.eye(N_STATES)).numpy().astype(np.float64)
+
+
+@pytest.mark.parametrize("epochs", [0, 3], ids=["random-features", "trained-features"])
+def test_mlp_fqi_finds_the_greedy_actions_of_q_star(mdp, epochs):
     """
-    The network version gets argmax Q* right on the small MDP. Its Q is within half the smallest gap
-    between the best and second-best action (0.19 here) of Q*, which is what makes the argmax exact; it
-    lands within ~0.02 over seeds 0-5.
+    The network version gets argmax Q* right on the small MDP, features trained or not. Its output layer is
+    linear FQI on 32 hidden features of 6 one-hot states, which span every Q over them: at the fixed point
+    (tol 1e-8) Q is Q* up to the ridge's shrinkage, far within half the smallest gap between the best and
+    second-best action (0.19 here), which is what makes the argmax exact.
     """
     sorted_q = np.sort(mdp["q_star"], axis=1)
     margin = np.min(sorted_q[:, -1] - sorted_q[:, -2])
-    network, result = fit_small_network(mdp, seed=0, iterations=60, epochs=10)
-    with th.no_grad():
-        q = network(th.eye(N_STATES)).numpy()
-    assert np.abs(q - mdp["q_star"]).max() < margin / 2
+    network, result = fit_small_network(mdp, seed=0, epochs=epochs)
+    q = q_of_states(network)
+    assert np.abs(q - mdp["q_star"]).max() < margin / 10
     np.testing.assert_array_equal(q.argmax(axis=1), mdp["q_star"].argmax(axis=1))
-    assert result.iterations == 60 and result.bellman_residual < 0.1
+    assert result.iterations < 2000 and result.bellman_residual < 0.01
+
+
+def test_mlp_warm_start_needs_fewer_iterations(mdp):
+    """
+    A refit after the rewards moved a little (the algorithm's steady state) starts from the previous fit's
+    output layer and converges in fewer iterations than a fit of the same rewards and features from
+    scratch, to the same Q (with the features kept, a warm start ignored would take as many).
+    """
+    network, _ = fit_small_network(mdp, seed=2, epochs=0, tol=1e-6)
+    moved = mdp["rewards"] + 0.01 * np.random.default_rng(3).normal(size=len(mdp["rewards"]))
+    _, warm = fit_small_network(mdp, seed=2, network=network, rewards=moved, epochs=0, tol=1e-6)
+    cold_network, cold = fit_small_network(mdp, seed=2, rewards=moved, epochs=0, tol=1e-6)
+    assert warm.iterations < 0.8 * cold.iterations
+    np.testing.assert_allclose(q_of_states(network), q_of_states(cold_network), atol=1e-3)
+
+
+def test_mlp_stopping_rule_stops_on_converged_targets_and_runs_to_the_cap_otherwise(mdp):
+    """
+    Refitting a converged network on the same rewards moves theta by less than tol at once: one iteration.
+    With tol = 0, or from scratch with a cap, the iterations run to ``max_iterations``.
+    """
+    network, converged = fit_small_network(mdp, seed=4, epochs=0, tol=1e-6)
+    assert 1 < converged.iterations < 2000
+    _, again = fit_small_network(mdp, seed=4, network=network, epochs=0, tol=1e-6)
+    assert again.iterations == 1
+    _, exact = fit_small_network(mdp, seed=4, network=network, epochs=0, tol=0.0, max_iterations=7)
+    assert exact.iterations == 7
+    _, capped = fit_small_network(mdp, seed=4, epochs=0, tol=1e-6, max_iterations=5)
+    assert capped.iterations == 5 and capped.bellman_residual > converged.bellman_residual
 
 
 def test_mlp_fqi_is_deterministic_given_its_seeds(mdp):
-    """Same initial weights and shuffling generator: the same network, weight for weight."""
-    first, _ = fit_small_network(mdp, seed=1, iterations=3, epochs=2)
-    second, _ = fit_small_network(mdp, seed=1, iterations=3, epochs=2)
+    """Same initial weights, optimizer state and shuffling generator: the same network, weight for weight."""
+    first, _ = fit_small_network(mdp, seed=1, epochs=2, max_iterations=3)
+    second, _ = fit_small_network(mdp, seed=1, epochs=2, max_iterations=3)
     for a, b in zip(first.parameters(), second.parameters(), strict=True):
         assert th.equal(a, b)
+    third, _ = fit_small_network(mdp, seed=5, epochs=2, max_iterations=3)
+    assert not th.equal(first[0].weight, third[0].weight)
+
+
+def test_an_unfitted_q_network_is_zero():
+    """Before its first fit a task's Q is 0, as the linear policy's (TRLSD's warning says so)."""
+    network = make_q_network(3, 2)
+    assert th.equal(network(th.randn(5, 3)), th.zeros(5, 2))
+
+
+def test_mlp_policy_refits_after_save_and_load_as_it_would_have(tmp_path, source_transitions):
+    """
+    The MLP's warm start lives in the policy's state: its networks, Adam's moments and the minibatch
+    generator. A loaded model's next refit gives the Q-values of the model that was never saved; Adam made
+    anew or another shuffle would not.
+    """
+    model = TRLSD("MlpPolicy", gym.make(MAZE_ID, task=(1, 1)), fqi_max_iterations=5, seed=0)
+    model.load_transitions(source_transitions)
+    model.learn(total_timesteps=20)
+    model.save(tmp_path / "mlp")
+    loaded = TRLSD.load(tmp_path / "mlp", env=model.get_env())
+    assert loaded.policy.optimizer.state_dict()["state"]
+    for each in (model, loaded):
+        each.update_policy(0)
+    states = np.random.default_rng(0).uniform(0, 5, size=(50, 2))
+    # float32 Q-values; the relabelling rebuilt after load sums in another order (rewards within ~1e-12)
+    np.testing.assert_allclose(loaded.policy.q_values(states, 0), model.policy.q_values(states, 0), rtol=1e-5)

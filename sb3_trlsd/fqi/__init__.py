@@ -2,7 +2,7 @@
 
 - ``targets.py``: the defaults, ``FQIResult`` and the Bellman targets every solver uses;
 - ``linear.py``: ``LinearFQISolver``, linear FQI that keeps its per-action factorisations across refits;
-- ``mlp.py``: FQI with a small network, trained in place.
+- ``mlp.py``: FQI with a small network: its output layer by linear FQI on its hidden features.
 """
 
 from sb3_trlsd.fqi.linear import LinearFQISolver, fit_linear_fqi
