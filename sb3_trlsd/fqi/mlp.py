@@ -131,7 +131,7 @@ def fit_mlp_fqi(
         with th.no_grad():
             bootstrap = network(x_next).max(dim=1).values.clamp(low, high)
             y = r + gamma * th.where(continues, bootstrap, 0.0)  # (n,), eq. 1
-        scale = max(-low, high, 1e-12) ** 2
+        squared_bound = max(-low, high, 1e-12) ** 2
         if optimizer is None:
             optimizer = th.optim.Adam(network.parameters(), lr=learning_rate)
         for _ in range(epochs):
@@ -139,7 +139,7 @@ def fit_mlp_fqi(
             for start in range(0, len(x), batch_size):
                 rows = order[start : start + batch_size]
                 predicted = network(x[rows]).gather(1, a[rows])[:, 0]  # Q(s, a), (b,)
-                loss = th.nn.functional.mse_loss(predicted, y[rows]) / scale
+                loss = th.nn.functional.mse_loss(predicted, y[rows]) / squared_bound
                 optimizer.zero_grad()
                 loss.backward()
                 optimizer.step()
