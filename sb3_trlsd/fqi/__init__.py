@@ -5,7 +5,7 @@
 - ``mlp.py``: FQI with a small network: its output layer by linear FQI on its hidden features.
 """
 
-from sb3_trlsd.fqi.linear import LinearFQISolver, fit_linear_fqi
+from sb3_trlsd.fqi.linear import LinearFQISolver, fit_linear_fqi, fit_linear_fqi_runs
 from sb3_trlsd.fqi.mlp import fit_mlp_fqi, make_q_network
 from sb3_trlsd.fqi.targets import (
     DEFAULT_LINEAR_ITERATIONS,
@@ -14,6 +14,7 @@ from sb3_trlsd.fqi.targets import (
     DEFAULT_TOL,
     FQIResult,
     bellman_targets,
+    bellman_targets_by_action,
     linear_q_values,
     return_bounds,
 )
@@ -26,7 +27,9 @@ __all__ = [
     "FQIResult",
     "LinearFQISolver",
     "bellman_targets",
+    "bellman_targets_by_action",
     "fit_linear_fqi",
+    "fit_linear_fqi_runs",
     "fit_mlp_fqi",
     "linear_q_values",
     "make_q_network",

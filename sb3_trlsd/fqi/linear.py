@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import NamedTuple
 
 import numpy as np
@@ -14,11 +15,11 @@ from sb3_trlsd.fqi.targets import (
     DEFAULT_RIDGE,
     DEFAULT_TOL,
     FQIResult,
-    bellman_targets,
+    bellman_targets_by_action,
     return_bounds,
 )
 
-__all__ = ["LinearFQISolver", "fit_linear_fqi"]
+__all__ = ["LinearFQISolver", "fit_linear_fqi", "fit_linear_fqi_runs"]
 
 
 class _ActionBlock(NamedTuple):
@@ -27,7 +28,7 @@ class _ActionBlock(NamedTuple):
     action: int
     phi_t: np.ndarray  # X_a^T, (k, n_a)
     next_phi_t: np.ndarray  # Phi(s')^T, (k, n_a)
-    terminated: np.ndarray  # (n_a,) bool
+    terminated: np.ndarray | None  # (n_a,) bool; None when no s' of the block is absorbing
     rows: np.ndarray  # row of each column in the order of extend calls, (n_a,) int
     inverse: np.ndarray  # (X_a^T X_a + ridge I)^-1, (k, k), float64
 
@@ -135,25 +136,26 @@ class LinearFQISolver:
             return features
         return np.where(np.abs(features) < np.finfo(self.dtype).tiny, 0.0, features).astype(self.dtype)
 
+    def inverse(self, action: int) -> np.ndarray:
+        """(X_a^T X_a + ridge I)^-1 for an action, (k, k) float64, factored once until the action grows."""
+        if self._inverse[action] is None:
+            self._inverse[action] = cho_solve(cho_factor(self._gram[action]), np.eye(self.n_features))
+        return self._inverse[action]
+
     def _blocks(self) -> list[_ActionBlock]:
         """The actions with samples, their columns and inverted Gram matrices."""
-        blocks = []
-        for a in range(self.n_actions):
-            if not len(self._rows[a]):
-                continue
-            if self._inverse[a] is None:
-                self._inverse[a] = cho_solve(cho_factor(self._gram[a]), np.eye(self.n_features))
-            blocks.append(
-                _ActionBlock(
-                    action=a,
-                    phi_t=self._phi_t[a].view(),
-                    next_phi_t=self._next_phi_t[a].view(),
-                    terminated=self._terminated[a].view()[0],
-                    rows=self._rows[a].view()[0],
-                    inverse=self._inverse[a],
-                )
+        return [
+            _ActionBlock(
+                action=a,
+                phi_t=self._phi_t[a].view(),
+                next_phi_t=self._next_phi_t[a].view(),
+                terminated=self._terminated[a].view()[0] if self._terminated[a].view().any() else None,
+                rows=self._rows[a].view()[0],
+                inverse=self.inverse(a),
             )
-        return blocks
+            for a in range(self.n_actions)
+            if len(self._rows[a])
+        ]
 
     def fit(
         self,
@@ -165,7 +167,8 @@ class LinearFQISolver:
         tol: float = DEFAULT_TOL,
     ) -> FQIResult:
         """
-        Fitted-Q Iteration on the stored transitions with the given rewards (see ``fit_linear_fqi``).
+        Fitted-Q Iteration on the stored transitions with the given rewards (see ``fit_linear_fqi``): one run
+        of ``fit_linear_fqi_runs``.
 
         :param rewards: r of every stored transition in the order they were added, (n_transitions,)
         :param gamma: discount factor in [0, 1)
@@ -176,53 +179,272 @@ class LinearFQISolver:
             raised to it
         :return: theta, iterations run and the RMS Bellman residual
         """
-        rewards = np.asarray(rewards, dtype=np.float64)
-        if rewards.shape != (self.n_transitions,) or not np.all(np.isfinite(rewards)):
-            raise ValueError(
-                f"rewards must be finite, one per stored transition: shape ({self.n_transitions},), "
-                f"got {rewards.shape}"
-            )
-        if not 0 <= gamma < 1:
-            raise ValueError(f"gamma must be in [0, 1), got {gamma}")
-        if not max_iterations >= 1 or not tol >= 0:
-            raise ValueError(f"max_iterations must be >= 1 and tol >= 0, got {max_iterations} and {tol}")
-        shape = (self.n_actions, self.n_features)
-        theta = np.zeros(shape) if theta0 is None else np.array(theta0, dtype=np.float64, copy=True)
-        if theta.shape != shape:
-            raise ValueError(f"theta0 must have shape {shape}, got {theta.shape}")
-        if not self.n_transitions:
-            return FQIResult(theta=theta, iterations=0, bellman_residual=0.0)
-        tol = max(tol, 64 * float(np.finfo(self.dtype).eps))
+        return fit_linear_fqi_runs(
+            self, [None], [rewards], gamma=gamma, theta0=[theta0], max_iterations=max_iterations, tol=tol
+        )[0]
 
-        blocks = self._blocks()
-        block_rewards = [rewards[block.rows].astype(self.dtype) for block in blocks]
-        bounds = return_bounds(rewards, gamma)
 
-        def targets_of(theta: np.ndarray) -> list[np.ndarray]:
-            # y = r + gamma max_a' theta_a' . Phi(s') (eq. 4), per action block, Q(s', .) as (A, n_a)^T
-            theta = theta.astype(self.dtype, copy=False)
-            return [
-                bellman_targets(r, (theta @ block.next_phi_t).T, block.terminated, gamma, bounds)
-                for block, r in zip(blocks, block_rewards, strict=True)
-            ]
+class _RunBlock(NamedTuple):
+    """One action block of one run's own rows, with the run's rewards of those rows."""
 
-        targets = targets_of(theta)
-        iterations = 0
-        for iterations in range(1, max_iterations + 1):  # noqa: B007 (the count is returned)
-            new_theta = theta.copy()
-            for block, y in zip(blocks, targets, strict=True):
-                new_theta[block.action] = block.inverse @ (block.phi_t @ y)  # eq. 4, block a
-            change = np.abs(new_theta - theta).max()
-            theta = new_theta
-            targets = targets_of(theta)
-            if change <= tol * (1.0 + np.abs(theta).max()):
-                break
-        squared_error = sum(
-            float(np.sum((y - theta[block.action].astype(self.dtype) @ block.phi_t) ** 2, dtype=np.float64))
-            for block, y in zip(blocks, targets, strict=True)
+    block: _ActionBlock
+    rewards: np.ndarray  # (n_a,) in the storage precision
+
+
+class _Run(NamedTuple):
+    """What one run of ``fit_linear_fqi_runs`` fits: its own blocks, projections and bounds."""
+
+    theta0: np.ndarray  # (n_actions, k) float64
+    own_blocks: list[_RunBlock]
+    inverse: np.ndarray  # (n_actions, k, k): (G_a + G_a,r - ridge I)^-1, identity where a has no row
+    has_rows: np.ndarray  # (n_actions,) bool
+    bounds: tuple[float, float]  # ``return_bounds`` of its rewards
+    n_rows: int
+
+
+def _check_solvers(solvers: list[LinearFQISolver]) -> LinearFQISolver:
+    """The first solver, once every solver is known to have its sizes, ridge and precision."""
+    first = solvers[0]
+    for solver in solvers[1:]:
+        settings = (solver.n_features, solver.n_actions, solver.ridge, solver.dtype)
+        if settings != (first.n_features, first.n_actions, first.ridge, first.dtype):
+            raise ValueError(f"the runs' solvers must share sizes, ridge and dtype: {first!r} and {solver!r}")
+    return first
+
+
+def _projection_of(
+    shared: LinearFQISolver | None, own: LinearFQISolver | None, action: int
+) -> np.ndarray | None:
+    """The inverse Gram matrix of one action over the shared rows and a run's own ones (None: no row)."""
+    in_shared = shared is not None and len(shared._rows[action]) > 0
+    in_own = own is not None and len(own._rows[action]) > 0
+    if in_shared and in_own:
+        assert shared is not None and own is not None
+        identity = np.eye(shared.n_features)
+        # Both Gram matrices hold ridge I: the sum holds it twice.
+        return cho_solve(
+            cho_factor(shared._gram[action] + own._gram[action] - shared.ridge * identity), identity
         )
-        residual = float(np.sqrt(squared_error / self.n_transitions))
-        return FQIResult(theta=theta, iterations=iterations, bellman_residual=residual)
+    if in_shared or in_own:
+        solver = shared if in_shared else own
+        assert solver is not None
+        return solver.inverse(action)
+    return None
+
+
+class _OwnRows(NamedTuple):
+    """The own rows of the active runs side by side, padded to the longest (a padded row weighs 0)."""
+
+    phi_t: np.ndarray  # (runs, k, n) X^T of every own row, the actions' blocks one after the other
+    next_phi_t: np.ndarray  # (runs, k, n)
+    action_mask: np.ndarray  # (runs, n_actions, n): 1 where the row is of that action, 0 elsewhere
+    rewards: np.ndarray  # (runs, n)
+    terminated: np.ndarray  # (runs, n) bool
+
+    @classmethod
+    def of(cls, runs: list[_Run], n_actions: int, k: int, dtype: np.dtype) -> _OwnRows:
+        n = max((sum(len(own.rewards) for own in run.own_blocks) for run in runs), default=0)
+        rows = cls(
+            np.zeros((len(runs), k, n), dtype),
+            np.zeros((len(runs), k, n), dtype),
+            np.zeros((len(runs), n_actions, n), dtype),
+            np.zeros((len(runs), n), dtype),
+            np.zeros((len(runs), n), dtype=bool),
+        )
+        for i, run in enumerate(runs):
+            start = 0
+            for own in run.own_blocks:
+                columns = slice(start, start + len(own.rewards))
+                rows.phi_t[i, :, columns] = own.block.phi_t
+                rows.next_phi_t[i, :, columns] = own.block.next_phi_t
+                rows.action_mask[i, own.block.action, columns] = 1.0
+                rows.rewards[i, columns] = own.rewards
+                if own.block.terminated is not None:
+                    rows.terminated[i, columns] = own.block.terminated
+                start = columns.stop
+        return rows
+
+    def kept(self, keep: np.ndarray) -> _OwnRows:
+        return _OwnRows(*(array[keep] for array in self))
+
+
+class _BatchedFit:
+    """The iterations of ``fit_linear_fqi_runs`` over the runs still iterating (``active``: their indices)."""
+
+    def __init__(
+        self, shared: LinearFQISolver | None, runs: list[_Run], shared_rewards: np.ndarray, gamma: float
+    ):
+        self.shared_blocks = [] if shared is None else shared._blocks()
+        self.runs, self.gamma = runs, gamma
+        self.dtype = shared_rewards.dtype
+        self.n_actions, self.k = runs[0].theta0.shape
+        self.active = np.array([r for r, run in enumerate(runs) if run.n_rows], dtype=np.int64)
+        # Per active run, kept as the set shrinks: shared blocks' rewards, bounds, projections, own rows.
+        self.block_rewards = [shared_rewards[self.active][:, block.rows] for block in self.shared_blocks]
+        bounds = np.array([runs[r].bounds for r in self.active], dtype=self.dtype).reshape(-1, 2)
+        self.low, self.high = bounds[:, :1], bounds[:, 1:]
+        self.inverses = np.stack([runs[r].inverse for r in self.active]) if len(self.active) else None
+        self.has_rows = np.array([runs[r].has_rows for r in self.active]).reshape(-1, self.n_actions, 1)
+        self.own = _OwnRows.of([runs[r] for r in self.active], self.n_actions, self.k, self.dtype)
+
+    def drop(self, done: np.ndarray) -> None:
+        """Stop iterating the active runs where ``done``."""
+        keep = ~done
+        self.active = self.active[keep]
+        self.block_rewards = [rewards[keep] for rewards in self.block_rewards]
+        self.low, self.high, self.has_rows = self.low[keep], self.high[keep], self.has_rows[keep]
+        self.inverses = None if self.inverses is None else self.inverses[keep]
+        self.own = self.own.kept(keep)
+
+    def targets(self, theta: np.ndarray) -> tuple[list[np.ndarray], np.ndarray]:
+        """
+        y = r + gamma max_a' theta_a' . Phi(s') (eq. 4): (active, n_a) for each shared action block, from
+        one product for all active runs, and (active, n) over the own rows, from one batched product.
+        """
+        stored = theta.astype(self.dtype, copy=False)
+        flat = stored.reshape(len(self.active) * self.n_actions, self.k)
+        shared_y = [
+            bellman_targets_by_action(
+                rewards,
+                (flat @ block.next_phi_t).reshape(len(self.active), self.n_actions, -1),
+                block.terminated,
+                self.gamma,
+                self.low,
+                self.high,
+            )
+            for block, rewards in zip(self.shared_blocks, self.block_rewards, strict=True)
+        ]
+        own = self.own
+        if not own.rewards.shape[1]:
+            return shared_y, own.rewards
+        own_y = bellman_targets_by_action(
+            own.rewards, np.matmul(stored, own.next_phi_t), own.terminated, self.gamma, self.low, self.high
+        )
+        return shared_y, own_y
+
+    def projected(self, theta: np.ndarray, shared_y: list, own_y: np.ndarray) -> np.ndarray:
+        """theta_a <- (X_a^T X_a + ridge I)^-1 X_a^T y_a (eq. 4, block a) for every active run."""
+        moments = np.zeros((len(self.active), self.n_actions, self.k))
+        for block, y in zip(self.shared_blocks, shared_y, strict=True):
+            moments[:, block.action] += (block.phi_t @ y.T).T
+        if own_y.shape[1]:
+            # X_a^T y_a over the own rows of action a, every action and run in one batched product.
+            moments += np.matmul(self.own.action_mask * own_y[:, None, :], self.own.phi_t.transpose(0, 2, 1))
+        new = np.einsum("rakj,raj->rak", self.inverses, moments)
+        return np.where(self.has_rows, new, theta)
+
+    def residual(self, i: int, theta: np.ndarray, shared_y: list, own_y: np.ndarray) -> float:
+        """The RMS Bellman residual sqrt(mean (y - X theta)^2) of active run ``i``."""
+        stored = theta.astype(self.dtype, copy=False)
+        squared_error = sum(
+            float(np.sum((y[i] - stored[block.action] @ block.phi_t) ** 2, dtype=np.float64))
+            for block, y in zip(self.shared_blocks, shared_y, strict=True)
+        )
+        if own_y.shape[1]:
+            own_error = self.own.action_mask[i] * (own_y[i] - stored @ self.own.phi_t[i])  # (n_actions, n)
+            squared_error += float(np.sum(own_error**2, dtype=np.float64))
+        return float(np.sqrt(squared_error / self.runs[self.active[i]].n_rows))
+
+
+def fit_linear_fqi_runs(
+    shared: LinearFQISolver | None,
+    own: Sequence[LinearFQISolver | None],
+    rewards: Sequence[np.ndarray],
+    *,
+    gamma: float,
+    theta0: Sequence[np.ndarray | None],
+    max_iterations: int = DEFAULT_LINEAR_ITERATIONS,
+    tol: float = DEFAULT_TOL,
+) -> list[FQIResult]:
+    """
+    Linear Fitted-Q Iteration of several runs at once (eq. 3-4): run r fits on the ``shared`` rows followed by
+    its ``own[r]`` rows, with its rewards ``rewards[r]`` of those rows in that order, from ``theta0[r]``.
+
+    Runs of a batch that share their source transitions share their rows: the products of eq. 4 over the
+    shared rows are then one matrix-matrix product for every run still iterating (Phi(s')^T of the rows
+    times the parameters of all of them), read from memory once. Run r's projection of action a is
+    (G_a + G_a,r - ridge I)^-1 (X_a^T y_a + X_a,r^T y_a,r), the Gram matrices of the shared and own rows
+    (each holding ridge I) added. Each run stops by its own rule, so it gets what a fit of it alone gives,
+    up to the order of floating-point sums. ``LinearFQISolver.fit`` is this function with one run.
+
+    :param shared: the rows every run has (None: none)
+    :param own: each run's own rows (None: none); the solvers' sizes, ridge and precision must agree
+    :param rewards: each run's r, (n_shared + n_own_r,)
+    :param gamma: discount factor in [0, 1)
+    :param theta0: each run's warm start, (n_actions, k) or None for zeros. Actions without rows keep it
+    :param max_iterations: cap on the iterations of each run (>= 1)
+    :param tol: each run stops when max |theta_new - theta| <= tol * (1 + max |theta_new|) (see ``fit``)
+    :return: one result per run
+    """
+    solvers = [solver for solver in (shared, *own) if solver is not None]
+    if not solvers:
+        raise ValueError("fit_linear_fqi_runs needs rows: a shared solver or an own solver per run")
+    if not len(own) == len(rewards) == len(theta0):
+        raise ValueError(
+            f"own, rewards and theta0 need one entry per run, got {len(own)}, {len(rewards)}, {len(theta0)}"
+        )
+    if not 0 <= gamma < 1:
+        raise ValueError(f"gamma must be in [0, 1), got {gamma}")
+    if not max_iterations >= 1 or not tol >= 0:
+        raise ValueError(f"max_iterations must be >= 1 and tol >= 0, got {max_iterations} and {tol}")
+    first = _check_solvers(solvers)
+    n_actions, k, dtype = first.n_actions, first.n_features, first.dtype
+    tol = max(tol, 64 * float(np.finfo(dtype).eps))
+    n_shared = 0 if shared is None else shared.n_transitions
+    runs, shared_rewards = [], np.zeros((len(own), n_shared), dtype=dtype)
+    for r, (own_rows, run_rewards, start) in enumerate(zip(own, rewards, theta0, strict=True)):
+        n_rows = n_shared + (0 if own_rows is None else own_rows.n_transitions)
+        run_rewards = np.asarray(run_rewards, dtype=np.float64)
+        if run_rewards.shape != (n_rows,) or not np.all(np.isfinite(run_rewards)):
+            raise ValueError(
+                f"rewards must be finite, one per row of the run: shape ({n_rows},), got {run_rewards.shape}"
+            )
+        theta = np.zeros((n_actions, k)) if start is None else np.array(start, dtype=np.float64, copy=True)
+        if theta.shape != (n_actions, k):
+            raise ValueError(f"theta0 must have shape {(n_actions, k)}, got {theta.shape}")
+        shared_rewards[r] = run_rewards[:n_shared]
+        projections = [_projection_of(shared, own_rows, a) for a in range(n_actions)]
+        own_rewards = run_rewards[n_shared:]
+        runs.append(
+            _Run(
+                theta0=theta,
+                own_blocks=[]
+                if own_rows is None
+                else [_RunBlock(b, own_rewards[b.rows].astype(dtype)) for b in own_rows._blocks()],
+                inverse=np.stack([np.eye(k) if p is None else p for p in projections]),
+                has_rows=np.array([p is not None for p in projections]),
+                bounds=return_bounds(run_rewards, gamma),
+                n_rows=n_rows,
+            )
+        )
+
+    fit = _BatchedFit(shared, runs, shared_rewards, gamma)
+    results = [
+        FQIResult(theta=run.theta0, iterations=0, bellman_residual=0.0) if not run.n_rows else None
+        for run in runs
+    ]
+    theta = np.stack([runs[r].theta0 for r in fit.active]) if len(fit.active) else None
+    if theta is not None:
+        shared_y, own_y = fit.targets(theta)
+        for iteration in range(1, max_iterations + 1):
+            new_theta = fit.projected(theta, shared_y, own_y)
+            change = np.abs(new_theta - theta).max(axis=(1, 2))
+            theta = new_theta
+            shared_y, own_y = fit.targets(theta)
+            done = (change <= tol * (1.0 + np.abs(theta).max(axis=(1, 2)))) | (iteration == max_iterations)
+            for i in np.flatnonzero(done):
+                residual = fit.residual(int(i), theta[i], shared_y, own_y)
+                results[fit.active[i]] = FQIResult(
+                    theta=theta[i], iterations=iteration, bellman_residual=residual
+                )
+            if done.all():
+                break
+            if done.any():
+                theta = theta[~done]
+                shared_y, own_y = [y[~done] for y in shared_y], own_y[~done]
+                fit.drop(done)
+    assert all(result is not None for result in results)
+    return results  # type: ignore[return-value]
 
 
 def fit_linear_fqi(

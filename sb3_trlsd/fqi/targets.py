@@ -17,6 +17,7 @@ __all__ = [
     "DEFAULT_TOL",
     "FQIResult",
     "bellman_targets",
+    "bellman_targets_by_action",
     "linear_q_values",
     "return_bounds",
 ]
@@ -95,6 +96,37 @@ def bellman_targets(
     :param bounds: (low, high) clip of the bootstrap
     :return: y, (n,)
     """
-    # Reduced along the first axis of next_q.T, contiguous when next_q is a transposed (n_actions, n).
-    bootstrap = np.clip(np.max(next_q.T, axis=0), *bounds)
-    return rewards + gamma * np.where(terminated, 0.0, bootstrap)  # eq. 1
+    return bellman_targets_by_action(rewards, next_q.T, terminated, gamma, *bounds)
+
+
+def bellman_targets_by_action(
+    rewards: np.ndarray,
+    next_q: np.ndarray,
+    terminated: np.ndarray | None,
+    gamma: float,
+    low: float | np.ndarray,
+    high: float | np.ndarray,
+) -> np.ndarray:
+    """
+    ``bellman_targets`` for Q(s', .) laid out action by action, with leading axes (several runs at once).
+
+    :param rewards: r, (..., n)
+    :param next_q: Q(s', .), (..., n_actions, n)
+    :param terminated: s' is absorbing, (n,) or (..., n) bool; None: no s' is
+    :param gamma: discount factor
+    :param low: lower clip of the bootstrap, broadcast against (..., n) (e.g. one per run, (runs, 1))
+    :param high: upper clip of the bootstrap, likewise
+    :return: y, (..., n)
+    """
+    # max over the actions, clipped, and without the bootstrap past an absorbing s': in place, as the
+    # iterations are bound by these passes over the rows.
+    bootstrap = next_q[..., 0, :].astype(np.result_type(next_q, rewards))  # a copy
+    for action in range(1, next_q.shape[-2]):
+        np.maximum(bootstrap, next_q[..., action, :], out=bootstrap)
+    np.maximum(bootstrap, low, out=bootstrap)
+    np.minimum(bootstrap, high, out=bootstrap)
+    if terminated is not None and terminated.any():
+        bootstrap[..., terminated] = 0.0
+    bootstrap *= gamma
+    bootstrap += rewards
+    return bootstrap  # eq. 1
