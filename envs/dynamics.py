@@ -18,7 +18,7 @@ the segment reaches the line lies on the wall's closed segment (its end points i
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 
 import numpy as np
 
@@ -31,6 +31,7 @@ __all__ = [
     "SOUTH",
     "WEST",
     "cell_of",
+    "cell_task",
     "first_wall_hits",
     "make_walls",
     "maze_step",
@@ -148,10 +149,27 @@ def _check_actions(actions: np.ndarray, n_states: int) -> None:
         )
 
 
+Generators = np.random.Generator | Sequence[np.random.Generator]
+
+
+def _normal_rows(rng: Generators, n: int) -> np.ndarray:
+    """(n, 2) standard normal draws: from one generator, or the row's own generator for each row."""
+    if isinstance(rng, np.random.Generator):
+        return rng.normal(size=(n, 2))
+    return np.array([generator.normal(size=2) for generator in rng]).reshape(n, 2)
+
+
+def _uniform_rows(rng: Generators, low: float, high: float, rows: np.ndarray) -> np.ndarray:
+    """U(low, high) draws for the given rows: from one generator, or each row's own."""
+    if isinstance(rng, np.random.Generator):
+        return rng.uniform(low, high, len(rows))
+    return np.array([rng[row].uniform(low, high) for row in rows])
+
+
 def maze_step(
     states: np.ndarray,
     actions: np.ndarray,
-    rng: np.random.Generator,
+    rng: Generators,
     walls: np.ndarray,
     along_noise_std: float = 0.5,
     across_noise_std: float = 0.25,
@@ -161,7 +179,8 @@ def maze_step(
 
     :param states: (n, 2) states in (0, 5)^2
     :param actions: (n,) actions in 0..3 (NORTH, WEST, SOUTH, EAST)
-    :param rng: random generator of the move noise and the rebounds
+    :param rng: random generator of the move noise and the rebounds, or one per state (the states of
+        several mazes stepped at once, each drawing from its own generator what a step of it alone draws)
     :param walls: (m, 4) from :func:`make_walls`
     :param along_noise_std: standard deviation of the noise along the action's axis
     :param across_noise_std: standard deviation of the noise on the other axis
@@ -172,7 +191,9 @@ def maze_step(
     _check_actions(actions, len(states))
     directions = ACTION_DIRECTIONS[actions]  # (n, 2)
     along = np.abs(directions)  # 1 on the action's axis, 0 on the other
-    noise = rng.normal(size=(len(states), 2)) * (along * along_noise_std + (1 - along) * across_noise_std)
+    if not isinstance(rng, np.random.Generator) and len(rng) != len(states):
+        raise ValueError(f"rng must be one generator or one per state, got {len(rng)} for {len(states)}")
+    noise = _normal_rows(rng, len(states)) * (along * along_noise_std + (1 - along) * across_noise_std)
     ends = states + directions + noise
     # Rows whose move may still cross a wall: all of them at first, then those that rebounded.
     active = np.arange(len(states))
@@ -188,7 +209,7 @@ def maze_step(
         axis = _wall_normal_axes(walls[wall])
         rows = np.arange(len(active))
         direction = np.sign(ends[active, axis] - states[active, axis])
-        rebound = rng.uniform(REBOUND_LOW, REBOUND_HIGH, len(active))
+        rebound = _uniform_rows(rng, REBOUND_LOW, REBOUND_HIGH, active)
         contact[rows, axis] = walls[wall, axis] - direction * rebound
         ends[active] = contact
     assert not len(active), f"{len(active)} moves still crossed walls after {MAX_REBOUNDS} rebounds"
@@ -204,3 +225,13 @@ def cell_of(states: np.ndarray) -> np.ndarray:
     """
     cells = np.ceil(np.asarray(states, dtype=np.float64).reshape(-1, 2))
     return np.clip(cells, 1, MAZE_SIZE).astype(np.int64)
+
+
+def cell_task(cells: np.ndarray) -> np.ndarray:
+    """
+    The task rewarding each cell: tau_ij (eq. 12) has index ``5 (i - 1) + (j - 1)``.
+
+    :param cells: (n, 2) cells ``(i, j)`` from ``cell_of``
+    :return: (n,) task indices
+    """
+    return MAZE_SIZE * (cells[:, 0] - 1) + (cells[:, 1] - 1)

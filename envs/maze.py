@@ -17,9 +17,11 @@ from sb3_trlsd_envs.dynamics import (
     SOUTH,
     WEST,
     cell_of,
+    cell_task,
     make_walls,
     maze_step,
 )
+from sb3_trlsd_envs.maze_runs import step_mazes
 from sb3_trlsd_envs.multitask import trajectory_lengths, warn_no_render_mode
 
 __all__ = [
@@ -262,7 +264,7 @@ class SharedDynamicsMaze(gym.Env):
             )
             out["next_states"][rows] = states
         cells = cell_of(out["states"])
-        target = MAZE_SIZE * (cells[:, 0] - 1) + (cells[:, 1] - 1) == out["tasks"]
+        target = cell_task(cells) == out["tasks"]
         out["rewards"] = target + self.reward_noise_std * rng.normal(size=n_transitions)
         last = offsets + cut_lengths - 1
         out["truncations"] = np.zeros(n_transitions, dtype=bool)
@@ -322,18 +324,8 @@ class SharedDynamicsMaze(gym.Env):
         if not self.action_space.contains(action):
             raise ValueError(f"action must be an integer in 0..3 (NORTH, WEST, SOUTH, EAST), got {action!r}")
         # The reward is drawn for the state the transition starts from (eq. 12 on s_t).
-        reward = self.expected_reward(self.state[None])[0] + self.reward_noise_std * self.np_random.normal()
-        self.state = maze_step(
-            self.state[None],
-            np.array([int(action)]),
-            self.np_random,
-            self.walls,
-            self.along_noise_std,
-            self.across_noise_std,
-        )[0]
-        self.trajectory.append(self.state.copy())
-        truncated = bool(self.np_random.random() < self.termination_prob)
-        return self._observation(), float(reward), False, truncated, self._info()
+        step = step_mazes([self], np.array([int(action)]))
+        return self._observation(), float(step.rewards[0]), False, bool(step.truncated[0]), self._info()
 
     def task_picture(self, view: Any) -> np.ndarray:
         """
