@@ -45,6 +45,16 @@ class FitRows(ABC):
             self._extend(rows)
         assert self.n_transitions == buffer.size() * buffer.n_envs
 
+    def extend(self, rows: Transitions) -> None:
+        """
+        Append rows read by the caller (e.g. a run's own rows, when the rows it shares with other runs are
+        another ``FitRows``): ``sync`` is for rows that are exactly one buffer's.
+
+        :param rows: the rows, in the buffer's order
+        """
+        if len(rows):
+            self._extend(rows)
+
     @abstractmethod
     def _clear(self) -> None:
         """Drop every row."""
