@@ -109,7 +109,8 @@ def test_reproduce_writes_valid_files(figure, tiny_sizes, tmp_path, capsys):
 
 
 def test_reproduce_resumes_from_the_runs_of_a_previous_command(tiny_sizes, tmp_path, monkeypatch):
-    """``<out>/runs`` keeps one file per run; the same command again runs nothing, ``--no-cache`` does."""
+    """``<out>/runs`` keeps one file per batch of runs; the same command again runs nothing, ``--no-cache``
+    does."""
     command = ["reproduce", "fig8", "--runs", "1", "--workers", "1", "--seed", "2", "--out"]
     assert main([*command, str(tmp_path)]) == 0
     files = {path.name: path.stat().st_mtime_ns for path in (tmp_path / "runs").iterdir()}
@@ -119,7 +120,7 @@ def test_reproduce_resumes_from_the_runs_of_a_previous_command(tiny_sizes, tmp_p
     def no_run(*args, **kwargs):
         raise AssertionError("a finished run ran again")
 
-    monkeypatch.setattr(runner, "run_online", no_run)
+    monkeypatch.setattr(runner.Lockstep, "run", no_run)
     assert main([*command, str(tmp_path)]) == 0
     assert {path.name: path.stat().st_mtime_ns for path in (tmp_path / "runs").iterdir()} == files
     assert json.loads((tmp_path / "fig8.json").read_text())["results"] == first["results"]

@@ -13,6 +13,7 @@ import numpy as np
 from sb3_trlsd.experiments.reporting import (
     mean_and_standard_error,
     plot_curves,
+    source_sets_of,
     summary,
     window_means,
     write_curves_csv,
@@ -99,7 +100,7 @@ def write_transfer_figure(
     save_figure(figure, out / f"{name}.png", title)
     results = {
         label: {
-            "reward": window_means(curves[label], windows),
+            "reward": window_means(curves[label], windows, source_sets_of(runs)),
             "policy_updates": update_counts(runs),
             "seconds_per_run": float(np.mean([record.seconds for record in runs])),
             "runs": len(runs),

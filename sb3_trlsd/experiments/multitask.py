@@ -22,7 +22,7 @@ from sb3_trlsd.experiments.reporting import (
     write_curves_csv,
     write_json,
 )
-from sb3_trlsd.experiments.runner import Method, multitask_run, run_jobs
+from sb3_trlsd.experiments.runner import Method, batch_runs, multitask_batch, run_jobs
 from sb3_trlsd_envs import N_TASKS
 
 DEFAULT_RUNS = 200  # paper: 200 runs
@@ -114,15 +114,22 @@ def reproduce(
     """
     started = time.perf_counter()
     runs = runs or DEFAULT_RUNS
-    jobs = [((method, seed + run, TURNS, EPISODE_STEPS), {}) for method in METHODS for run in range(runs)]
-    records = run_jobs(
-        multitask_run,
+    # Batches of runs stepped in lockstep; without a source, their runs share nothing and stay independent.
+    batches = batch_runs(runs)
+    jobs = [
+        ((method, tuple(seed + run for run in batch), TURNS, EPISODE_STEPS), {})
+        for method in METHODS
+        for batch in batches
+    ]
+    batch_records = run_jobs(
+        multitask_batch,
         jobs,
         workers,
-        description=f"{len(METHODS)} methods x {runs} runs",
+        description=f"{len(METHODS)} methods x {runs} runs, in batches",
         cache=cache,
         backend=backend,
     )
+    records = [record for batch in batch_records for record in batch]
     episodes = {
         method.label: np.stack(
             [

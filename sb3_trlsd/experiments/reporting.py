@@ -18,6 +18,7 @@ __all__ = [
     "moving_average",
     "plot_curves",
     "results_table",
+    "source_sets_of",
     "summary",
     "window_means",
     "write_curves_csv",
@@ -25,32 +26,58 @@ __all__ = [
 ]
 
 
-def mean_and_standard_error(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def mean_and_standard_error(
+    values: np.ndarray, clusters: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """
     Mean over runs and its standard error (0 with a single run).
 
+    Runs that started from the same source set are not independent: with ``clusters`` (the source set of
+    each run), the standard error is that of the mean of the clusters' means, std(cluster means) /
+    sqrt(clusters), which counts each source set once (the cluster-robust standard error for clusters of
+    equal size; they differ by one run at most here).
+
     :param values: (runs, ...) one row per run
+    :param clusters: (runs,) the cluster of each run, or None for independent runs
     :return: mean and standard error, each of shape values.shape[1:]
     """
     values = np.asarray(values, dtype=np.float64)
+    if clusters is not None and len(np.unique(clusters)) >= 2:
+        clusters = np.asarray(clusters)
+        means = np.stack([values[clusters == cluster].mean(axis=0) for cluster in np.unique(clusters)])
+        return values.mean(axis=0), means.std(axis=0, ddof=1) / np.sqrt(len(means))
     n_runs = len(values)
     if n_runs < 2:
         return values.mean(axis=0), np.zeros(values.shape[1:])
     return values.mean(axis=0), values.std(axis=0, ddof=1) / np.sqrt(n_runs)
 
 
-def window_means(values: np.ndarray, windows: Sequence[tuple[int, int]]) -> dict[str, dict[str, float]]:
+def source_sets_of(records: Sequence[Any]) -> np.ndarray | None:
+    """The source set of each run (``RunRecord.source_set``), or None if a run had one of its own."""
+    sets = [record.source_set for record in records]
+    return None if any(source_set is None for source_set in sets) else np.array(sets)
+
+
+def window_means(
+    values: np.ndarray, windows: Sequence[tuple[int, int]], clusters: np.ndarray | None = None
+) -> dict[str, dict[str, float]]:
     """
-    The reward averaged over each window of steps ``[start, stop)``, its mean and standard error over runs.
+    The reward averaged over each window of steps ``[start, stop)``, its mean and standard error over runs
+    (over source sets with ``clusters``: see ``mean_and_standard_error``, and then also ``se_runs``, the
+    standard error as if the runs were independent).
 
     :param values: (runs, steps)
     :param windows: ``(start, stop)`` pairs
+    :param clusters: (runs,) the source set of each run, or None
     :return: ``{"[start, stop)": {"mean": ..., "se": ...}}``
     """
     out = {}
     for start, stop in windows:
-        mean, se = mean_and_standard_error(np.asarray(values)[:, start:stop].mean(axis=1))
+        window = np.asarray(values)[:, start:stop].mean(axis=1)
+        mean, se = mean_and_standard_error(window, clusters)
         out[f"[{start}, {stop})"] = {"mean": float(mean), "se": float(se)}
+        if clusters is not None:
+            out[f"[{start}, {stop})"]["se_runs"] = float(mean_and_standard_error(window)[1])
     return out
 
 

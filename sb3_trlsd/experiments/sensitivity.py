@@ -13,7 +13,13 @@ import numpy as np
 
 from sb3_trlsd.experiments.backends import LOKY, Backend
 from sb3_trlsd.experiments.figures import new_figure, save_figure, update_counts
-from sb3_trlsd.experiments.reporting import summary, window_means, write_curves_csv, write_json
+from sb3_trlsd.experiments.reporting import (
+    source_sets_of,
+    summary,
+    window_means,
+    write_curves_csv,
+    write_json,
+)
 from sb3_trlsd.experiments.runner import Method, transfer_runs
 from sb3_trlsd_envs import N_TASKS
 
@@ -44,7 +50,10 @@ def reproduce(
     records["sigma=0.2"] = records["kappa=0.1"]
     curves = {label: np.stack([record.rewards for record in runs]) for label, runs in records.items()}
     write_curves_csv(out / "fig7.csv", "transition", curves)
-    windows = {label: window_means(values, WINDOWS) for label, values in curves.items()}
+    windows = {
+        label: window_means(values, WINDOWS, source_sets_of(records[label]))
+        for label, values in curves.items()
+    }
 
     figure, axes = new_figure(2)
     for ax, (parameter, values) in zip(axes, (("kappa", KAPPAS), ("sigma", SIGMAS)), strict=True):
