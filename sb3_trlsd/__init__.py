@@ -8,6 +8,7 @@ from sb3_trlsd.buffers import SharedDynamicsReplayBuffer
 from sb3_trlsd.data import Transitions, collect_transitions
 from sb3_trlsd.feature_maps import FeatureMap, RandomFourierFeatures, RBFGrid
 from sb3_trlsd.policies import LinearPolicy, MlpPolicy
+from sb3_trlsd.relabelling_buffer import RelabellingReplayBuffer
 from sb3_trlsd.reward_heads import (
     GridCells,
     KnownRewardHead,
@@ -29,6 +30,7 @@ __all__ = [
     "MlpPolicy",
     "RBFGrid",
     "RandomFourierFeatures",
+    "RelabellingReplayBuffer",
     "RewardHead",
     "RidgeRewardHead",
     "SharedDynamicsReplayBuffer",

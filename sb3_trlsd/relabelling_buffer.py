@@ -1,0 +1,258 @@
+"""TRLSD's relabelling as a replay buffer that any SB3 off-policy algorithm with Discrete actions can take.
+
+Section 2 of the paper: a transition xi_tau' = <tau', s, a, r, s'> of any task serves a target task tau once
+its reward is replaced by the target's optimistic proxy, psi(xi_tau') = <tau, s, a, R~_tau(s), s'>, with
+R~_tau = R^_tau + CI_tau learnt from tau's own samples (eq. 5-10). ``RelabellingReplayBuffer`` applies psi
+at sample time, the way SB3's ``HerReplayBuffer`` replaces goals: DQN, QR-DQN or any other learner that
+samples minibatches then fits its own Q-function on the relabelled rows instead of TRLSD's FQI.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+import torch as th
+from gymnasium import spaces
+from stable_baselines3.common.type_aliases import DictReplayBufferSamples, ReplayBufferSamples
+from stable_baselines3.common.vec_env import VecNormalize
+
+from sb3_trlsd.buffers import SharedDynamicsReplayBuffer
+from sb3_trlsd.builders import new_reward_head, state_box
+from sb3_trlsd.data import Transitions
+from sb3_trlsd.feature_maps import FeatureMap, make_feature_map
+from sb3_trlsd.observations import split_observation
+from sb3_trlsd.reward_heads import REWARD_HEAD_NAMES, RewardHead
+
+__all__ = ["LEARNT_REWARD_HEADS", "RelabellingReplayBuffer"]
+
+# The heads learnt from observed rewards; "known" needs no relabelling buffer (the env gives its reward).
+LEARNT_REWARD_HEADS = tuple(name for name in REWARD_HEAD_NAMES if name != "known")
+
+
+class RelabellingReplayBuffer(SharedDynamicsReplayBuffer):
+    """
+    Replay buffer of online transitions and of source transitions whose rewards are unknown, the latter
+    relabelled at sample time with a reward head learnt from the online rewards (Laroche & Barlier,
+    "Transfer Reinforcement Learning with Shared Dynamics", AAAI 2017, section 2 and eq. 5-10).
+
+    Each task of the observations has a reward head (``"ridge"``: eq. 8-9 on the feature map Phi;
+    ``"tabular"``: eq. 10 on a grid of cells), which learns from every online transition of its task as
+    ``add`` stores it: the reward observed for the transition's start state s, the paper's R_tau(s). A
+    sampled source row is served to one of the tasks seen online (drawn uniformly when there are several:
+    its observation's ``"task"`` becomes that task) with the reward R~_tau(s) = R^_tau(s) + CI_tau(s) of
+    that task's head as it is now (``kappa=0``: the plain estimate R^). Online rows keep their observed
+    reward by default, as HER keeps its real transitions: the head only stands in for rewards nobody
+    observed. ``relabel_online_rows=True`` relabels them too with their own task's head, as TRLSD's FQI
+    sees its whole buffer.
+
+    Rows live in one ring of ``buffer_size`` rows, source and online alike (as in any SB3 buffer, the
+    oldest go first once it is full): give it room for the source rows and the online budget. The heads
+    keep what they learnt when rows leave the ring. Observations are a state Box (a single task, task 0)
+    or a ``{"state": Box, "task": Discrete}`` Dict; the state Box must be bounded, or ``state_bounds``
+    given, because features and similarity widths are fractions of the state box (as in ``TRLSD``).
+
+    Defaults are ``TRLSD``'s (the paper's on the maze: kappa = 0.1, sigma = 0.2, 5 x 5 RBFs of width 0.2).
+    With ``kappa > 0`` the bonus far from any online sample is large (up to
+    kappa * sqrt(log|Xi_tau| / w_floor), see ``reward_heads.base``): a deep Q-learner fits such targets
+    slowly, so cap R~ at a known bound of the reward with ``reward_head_kwargs={"r_max": ...}``.
+
+    Usage, with DQN on the maze (QR-DQN and the other off-policy algorithms take it the same way)::
+
+        import gymnasium as gym
+        from stable_baselines3 import DQN
+        from sb3_trlsd import RelabellingReplayBuffer, collect_transitions
+
+        source = collect_transitions(gym.make("TRLSD/SharedDynamicsMaze-v0", task=(3, 3)), 25_000, seed=0)
+        model = DQN(
+            "MultiInputPolicy",
+            gym.make("TRLSD/SharedDynamicsMaze-v0", task=(1, 1)),
+            buffer_size=50_000,
+            replay_buffer_class=RelabellingReplayBuffer,
+            replay_buffer_kwargs={"kappa": 0.1, "reward_head_kwargs": {"r_max": 1.0}},
+            seed=0,
+        )
+        model.replay_buffer.load_transitions(source)  # their rewards are discarded
+        model.learn(total_timesteps=5_000)
+        model.save_replay_buffer("buffer.pkl")  # the rows and the heads
+        model.load_replay_buffer("buffer.pkl")
+
+    :param buffer_size: Max number of transitions, source and online
+    :param observation_space: the env's observation space (Box, or Dict with ``state`` and ``task``)
+    :param action_space: the env's (Discrete) action space
+    :param device: PyTorch device for sampled batches
+    :param n_envs: number of parallel environments (1 to load source transitions)
+    :param optimize_memory_usage: not supported (next states are kept apart), must be False
+    :param handle_timeout_termination: keep truncations apart from terminations so that learners
+        bootstrap through them
+    :param reward_head: ``"ridge"`` (eq. 9), ``"tabular"`` (eq. 10 on a grid over the state box, or a
+        ``cell_fn`` in ``reward_head_kwargs``), ``"corners"`` (only the grid's corner cells pay), or a
+        ``RewardHead`` copied for each task (then ``kappa``, ``sigma``, ``similarity`` and the feature map
+        arguments are not used)
+    :param kappa: optimism (eq. 9, 10); 0 relabels with the estimate R^ alone
+    :param sigma: width of the ridge head's similarity (eq. 8): for eq. 6 a fraction of the state box (None:
+        ``default_kernel_width(d)``, 0.04 in 2-D, the paper's 0.2 on the maze); for eq. 7 a distance between
+        feature vectors (None: 0.2)
+    :param similarity: ``"state"`` (eq. 6) or ``"features"`` (eq. 7)
+    :param feature_map: Phi of the ridge head: ``"rbf"``, ``"fourier"``, ``"auto"`` (see
+        ``make_feature_map``) or a ``FeatureMap``
+    :param feature_map_kwargs: further arguments of ``make_feature_map`` (``rbf_per_dim``, ``rbf_sigma``,
+        ``fourier_features``, ``seed``)
+    :param state_bounds: ``(low, high)`` of the states for an unbounded Box (None: the Box's, finite)
+    :param reward_head_kwargs: further arguments of the heads (``r_max``, ``w_floor``, ``ridge``; ``cell_fn``,
+        ``n_cells``, ``cells_per_dim`` for the tabular ones)
+    :param relabel_online_rows: relabel the online rows too (False: they keep their observed reward)
+    """
+
+    reward_heads: list[RewardHead]
+    features: FeatureMap | None
+
+    def __init__(
+        self,
+        buffer_size: int,
+        observation_space: spaces.Space,
+        action_space: spaces.Space,
+        device: th.device | str = "auto",
+        n_envs: int = 1,
+        optimize_memory_usage: bool = False,
+        handle_timeout_termination: bool = True,
+        reward_head: str | RewardHead = "ridge",
+        kappa: float = 0.1,
+        sigma: float | Sequence[float] | None = None,
+        similarity: str = "state",
+        feature_map: str | FeatureMap = "auto",
+        feature_map_kwargs: dict[str, Any] | None = None,
+        state_bounds: tuple[Sequence[float], Sequence[float]] | None = None,
+        reward_head_kwargs: dict[str, Any] | None = None,
+        relabel_online_rows: bool = False,
+    ):
+        if not isinstance(reward_head, RewardHead) and reward_head not in LEARNT_REWARD_HEADS:
+            raise ValueError(
+                f"reward_head must be one of {list(LEARNT_REWARD_HEADS)} or a RewardHead, got "
+                f"{reward_head!r} (a known reward needs no relabelling: the env's rewards are the known ones)"
+            )
+        super().__init__(
+            buffer_size,
+            observation_space,
+            action_space,
+            device=device,
+            n_envs=n_envs,
+            optimize_memory_usage=optimize_memory_usage,
+            handle_timeout_termination=handle_timeout_termination,
+        )
+        self.dict_observations = isinstance(observation_space, spaces.Dict)
+        # The attributes builders.new_reward_head reads, named as TRLSD's.
+        self.reward_head = reward_head
+        self.kappa = kappa
+        self.sigma = sigma
+        self.similarity = similarity
+        self.state_bounds = state_bounds
+        self.reward_head_kwargs = dict(reward_head_kwargs or {})
+        self.relabel_online_rows = bool(relabel_online_rows)
+        self.features = None
+        if reward_head == "ridge":
+            low, high = state_box(self)
+            self.features = (
+                feature_map
+                if isinstance(feature_map, FeatureMap)
+                else make_feature_map(
+                    feature_map,
+                    low,
+                    high,
+                    n_actions=0,
+                    n_tasks=self.n_tasks,
+                    **dict(feature_map_kwargs or {}),
+                )
+            )
+        self.reward_heads = [new_reward_head(self, task) for task in range(self.n_tasks)]
+
+    # ----------------------------------------------------------------- storing
+    def add(
+        self,
+        obs: np.ndarray | dict[str, np.ndarray],
+        next_obs: np.ndarray | dict[str, np.ndarray],
+        action: np.ndarray,
+        reward: np.ndarray,
+        done: np.ndarray,
+        infos: list[dict[str, Any]],
+    ) -> None:
+        """Store one step of the ``n_envs`` envs (validated first), and teach each task's head its rewards."""
+        super().add(obs, next_obs, action, reward, done, infos)
+        states, tasks = split_observation(obs, self.obs_shape[0])
+        rewards = np.asarray(reward, dtype=np.float64).reshape(-1)
+        for task in np.unique(tasks):
+            self.reward_heads[task].update(states[tasks == task], rewards[tasks == task])
+
+    def load_transitions(self, transitions: Transitions) -> None:
+        """
+        Add source transitions, of any tasks sharing the env's dynamics, their rewards discarded (the paper's
+        setting): they are relabelled whenever they are sampled. With Box observations (one task) their
+        tasks are not kept either: every row is task 0's.
+
+        :param transitions: e.g. from ``collect_transitions`` on other tasks
+        :raises ValueError: if they would overwrite stored rows (``buffer_size`` too small), or do not fit
+            the env (state dimension, actions, tasks of a Dict observation)
+        """
+        if self.size() + len(transitions) > self.buffer_size:
+            raise ValueError(
+                f"{len(transitions)} source transitions do not fit next to the {self.size()} stored rows of "
+                f"a buffer of size {self.buffer_size}: give the algorithm a larger buffer_size"
+            )
+        if not self.dict_observations:
+            transitions = replace(transitions, tasks=np.zeros_like(transitions.tasks))
+        self.add_transitions(transitions, keep_rewards=False)
+
+    # ----------------------------------------------------------------- sampling
+    def online_tasks(self) -> np.ndarray:
+        """The tasks whose head has learnt from online rewards: those a source row may be served to, (m,)."""
+        return np.array(
+            [task for task, head in enumerate(self.reward_heads) if head.n_samples > 0], dtype=int
+        )
+
+    def _get_samples(  # type: ignore[override]
+        self, batch_inds: np.ndarray, env: VecNormalize | None = None
+    ) -> ReplayBufferSamples | DictReplayBufferSamples:
+        # As SB3's buffers, draw from numpy's global generator: the one set_random_seed seeds.
+        env_indices = np.random.randint(0, high=self.n_envs, size=(len(batch_inds),))  # noqa: NPY002
+        states = self.observations[batch_inds, env_indices]  # (B, d)
+        next_states = self.next_observations[batch_inds, env_indices]  # (B, d)
+        tasks = self.tasks[batch_inds, env_indices].copy()  # (B,)
+        rewards = self.rewards[batch_inds, env_indices].copy()  # (B,), float32
+        source = ~self.has_reward[batch_inds, env_indices]  # (B,)
+        if source.any():
+            targets = self.online_tasks()
+            if not len(targets):
+                raise RuntimeError(
+                    "a source transition was sampled before any online one: its reward is relabelled for the "
+                    "tasks seen online, so add an online transition first (learning_starts >= 1)"
+                )
+            drawn = np.random.randint(len(targets), size=int(source.sum()))  # noqa: NPY002
+            tasks[source] = targets[drawn]  # psi: <tau', s, a, ?, s'> -> <tau, s, a, R~_tau(s), s'>
+        relabelled = np.ones_like(source) if self.relabel_online_rows else source
+        for task in np.unique(tasks[relabelled]):
+            rows = relabelled & (tasks == task)
+            rewards[rows] = self.reward_heads[task].optimistic(states[rows])  # eq. 5: R~ = R^ + CI
+        # Only terminations stop the bootstrap, not the resets after a truncation.
+        dones = self.dones[batch_inds, env_indices] * (1 - self.timeouts[batch_inds, env_indices])
+        rewards_column = self.to_torch(self._normalize_reward(rewards.reshape(-1, 1), env))
+        actions = self.to_torch(self.actions[batch_inds, env_indices])
+        if self.dict_observations:
+            observations = self._normalize_obs({"state": states, "task": tasks[:, None]}, env)
+            next_observations = self._normalize_obs({"state": next_states, "task": tasks[:, None]}, env)
+            assert isinstance(observations, dict) and isinstance(next_observations, dict)
+            return DictReplayBufferSamples(
+                observations={key: self.to_torch(value) for key, value in observations.items()},
+                actions=actions,
+                next_observations={key: self.to_torch(value) for key, value in next_observations.items()},
+                dones=self.to_torch(dones.reshape(-1, 1)),
+                rewards=rewards_column,
+            )
+        return ReplayBufferSamples(
+            observations=self.to_torch(self._normalize_obs(states, env)),
+            actions=actions,
+            next_observations=self.to_torch(self._normalize_obs(next_states, env)),
+            dones=self.to_torch(dones.reshape(-1, 1)),
+            rewards=rewards_column,
+        )
