@@ -45,8 +45,9 @@ class RelabellingReplayBuffer(SharedDynamicsReplayBuffer):
     its observation's ``"task"`` becomes that task) with the reward R~_tau(s) = R^_tau(s) + CI_tau(s) of
     that task's head as it is now (``kappa=0``: the plain estimate R^). Online rows keep their observed
     reward by default, as HER keeps its real transitions: the head only stands in for rewards nobody
-    observed. ``relabel_online_rows=True`` relabels them too with their own task's head, as TRLSD's FQI
-    sees its whole buffer.
+    observed (on the maze, relabelling them too with the ridge head left DQN's greedy policy at 0.01
+    after 1,000 steps on 5 seeds, against 0.34 when they kept theirs). ``relabel_online_rows=True``
+    relabels them with their own task's head, as TRLSD's FQI sees its whole buffer.
 
     Rows live in one ring of ``buffer_size`` rows, source and online alike (as in any SB3 buffer, the
     oldest go first once it is full): give it room for the source rows and the online budget. The heads
@@ -57,7 +58,9 @@ class RelabellingReplayBuffer(SharedDynamicsReplayBuffer):
     Defaults are ``TRLSD``'s (the paper's on the maze: kappa = 0.1, sigma = 0.2, 5 x 5 RBFs of width 0.2).
     With ``kappa > 0`` the bonus far from any online sample is large (up to
     kappa * sqrt(log|Xi_tau| / w_floor), see ``reward_heads.base``): a deep Q-learner fits such targets
-    slowly, so cap R~ at a known bound of the reward with ``reward_head_kwargs={"r_max": ...}``.
+    slowly, so cap R~ at a known bound of the reward with ``reward_head_kwargs={"r_max": ...}``. The
+    relabelled rows are many (the paper's 25,000 source rows): DQN gains from more gradient steps per env
+    step and more frequent target updates than for its own few rows (``benchmarks/bench_relabelling_dqn.py``).
 
     Usage, with DQN on the maze (QR-DQN and the other off-policy algorithms take it the same way)::
 
@@ -69,13 +72,15 @@ class RelabellingReplayBuffer(SharedDynamicsReplayBuffer):
         model = DQN(
             "MultiInputPolicy",
             gym.make("TRLSD/SharedDynamicsMaze-v0", task=(1, 1)),
-            buffer_size=50_000,
+            buffer_size=50_000,  # the source rows and every online one
+            gradient_steps=4,
+            target_update_interval=100,
             replay_buffer_class=RelabellingReplayBuffer,
-            replay_buffer_kwargs={"kappa": 0.1, "reward_head_kwargs": {"r_max": 1.0}},
+            replay_buffer_kwargs={"reward_head": "tabular", "reward_head_kwargs": {"r_max": 1.0}},
             seed=0,
         )
         model.replay_buffer.load_transitions(source)  # their rewards are discarded
-        model.learn(total_timesteps=5_000)
+        model.learn(total_timesteps=1_500)
         model.save_replay_buffer("buffer.pkl")  # the rows and the heads
         model.load_replay_buffer("buffer.pkl")
 
