@@ -10,6 +10,8 @@ import numpy as np
 
 __all__ = ["gaussian_similarity", "grid_centres", "squared_distances"]
 
+DIRECT_POINTS = 4  # up to this many query points, distances are taken directly (see squared_distances)
+
 
 def squared_distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """
@@ -19,11 +21,23 @@ def squared_distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     from the origin and close to each other, and centring brings them near it. Rounding can still leave
     small negatives, clipped at 0.
 
+    A few points ``a`` (at most ``DIRECT_POINTS``: one state, as the refit trigger asks) are compared
+    directly, sum_d (a_d - b_d)^2, which is cheaper there than a matrix product and exact to rounding.
+
     :param a: points (n, d)
     :param b: points (m, d)
-    :return: (n, m), the transpose of a C-contiguous (m, n) array
+    :return: (n, m), the transpose of a C-contiguous (m, n) array (C-contiguous for a few points)
     """
     a, b = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
+    if len(a) <= DIRECT_POINTS:
+        with np.errstate(over="ignore", invalid="ignore"):
+            differences = b[None, :, :] - a[:, None, :]
+            distances = np.einsum("nmd,nmd->nm", differences, differences)
+        # As in the expansion below: a point whose squared norm overflows is infinitely far from any other.
+        overflowing_a = ~np.isfinite(np.einsum("ij,ij->i", a, a))
+        overflowing_b = ~np.isfinite(np.einsum("ij,ij->i", b, b))
+        distances[overflowing_a[:, None] | overflowing_b[None, :] | np.isnan(distances)] = np.inf
+        return distances
     with np.errstate(over="ignore", invalid="ignore"):
         centre = b.mean(axis=0) if len(b) else np.zeros(b.shape[1])
         a, b = a - centre, b - centre

@@ -78,8 +78,9 @@ class TaskLearner:
         if not self.head.has_uncertainty:
             self.due = n_rows >= self.update_ratio * max(self.rows_at_refit, 1)
             return
-        then = self.head.uncertainty_as_of(self.uncertainty_at_refit, state)[0]
-        now = self.head.uncertainty(state)[0]
+        then, now = (
+            value[0] for value in self.head.uncertainty_then_and_now(self.uncertainty_at_refit, state)
+        )
         self.due = bool(then > 0 and then >= self.update_ratio * now)
 
     def relabelled_rewards(self, buffer: SharedDynamicsReplayBuffer) -> np.ndarray:

@@ -231,6 +231,17 @@ class RewardHead(ABC):
         """
         return self.uncertainty_as_of(self.snapshot(), states)
 
+    def uncertainty_then_and_now(self, snapshot: Any, states: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """
+        The uncertainty as of ``snapshot`` and as of now at the same states: what the refit trigger of
+        section 3 compares. A head can compute both at once (the ridge head: one similarity per sample).
+
+        :param snapshot: a value of ``snapshot()``
+        :param states: (n, d)
+        :return: then (n,), now (n,)
+        """
+        return self.uncertainty_as_of(snapshot, states), self.uncertainty(states)
+
     @abstractmethod
     def _update(self, states: np.ndarray, rewards: np.ndarray) -> None:
         """Fold in validated samples: states (n, d), rewards (n,), n >= 1."""

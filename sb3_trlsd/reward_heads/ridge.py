@@ -165,6 +165,21 @@ class RidgeRewardHead(RewardHead):
     def uncertainty_as_of(self, snapshot: int, states: np.ndarray) -> np.ndarray:
         return self.uncertainty_at(states, snapshot)
 
+    def uncertainty_then_and_now(self, snapshot: int, states: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        # W over the first `snapshot` samples, then over the rest: one similarity per sample (eq. 8).
+        points = self.similarity_points(states)
+        if self._points is None or len(points) * self.n_samples > KERNEL_BLOCK:
+            then = self.kernel_sums(points, 0, snapshot)
+            now = then + self.kernel_sums(points, snapshot)
+        else:
+            similarity = gaussian_similarity(points, self._points.view(), self.sigma)  # eq. 6 or 7
+            then = similarity[:, :snapshot].sum(axis=1)
+            now = then + similarity[:, snapshot:].sum(axis=1)
+        return (
+            confidence_width(log_sample_count(snapshot), then, self.w_floor),
+            confidence_width(log_sample_count(self.n_samples), now, self.w_floor),
+        )  # eq. 9 / kappa
+
     def tracker(self, states: np.ndarray) -> KernelSumTracker:
         return KernelSumTracker(self, states)
 
