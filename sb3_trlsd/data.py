@@ -86,6 +86,14 @@ class Transitions:
             if not np.all(np.isfinite(getattr(self, name))):
                 raise ValueError(f"Transitions.{name} contains NaN or infinite values")
 
+    def take(self, rows: np.ndarray) -> Transitions:
+        """
+        The transitions of the given rows, in that order (e.g. a permutation).
+
+        :param rows: row indices or a boolean mask
+        """
+        return Transitions(**{field.name: getattr(self, field.name)[rows] for field in fields(self)})
+
     def __len__(self) -> int:
         return len(self.actions)
 

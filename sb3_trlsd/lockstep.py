@@ -126,9 +126,14 @@ class Lockstep:
         buffer_size = (0 if source is None else len(source)) + max(self.n_steps, 1)
         self.runs = [_Run(model, buffer_size, source, self.n_tasks) for _ in range(n_runs)]
         self.shared_rows: LinearFitRows | None = None  # the source's rows, in the FQI's form
+        self.n_source = 0 if source is None else len(source)
         if source is not None:
+            # Sorted by action, each action's rows are a range the iterations slice; the source rewards of a
+            # fit follow that order (``source_order``).
+            rows = self.runs[0].buffer.transitions()
+            self.source_order = np.argsort(rows.actions, kind="stable")
             self.shared_rows = model.policy.new_fit_rows()
-            self.shared_rows.sync(self.runs[0].buffer)
+            self.shared_rows.extend(rows.take(self.source_order))
 
     def learner(self, run: int, task: int) -> TaskLearner:
         """The learning state of ``task`` in ``run``, created (no samples) the first time it is asked for."""
@@ -157,6 +162,8 @@ class Lockstep:
         if self.shared_rows is not None:
             # The source's rows are every run's: one fit, its products over them shared by all pairs.
             own = [self.runs[run].own_rows.solver for run, _ in pairs]
+            order = self.source_order
+            rewards = [np.concatenate([r[: self.n_source][order], r[self.n_source :]]) for r in rewards]
             results = fit_linear_fqi_runs(self.shared_rows.solver, own, rewards, theta0=theta0, **settings)
         else:
             # Without a source, runs share no row: a fit per run, over the tasks of that run due now.

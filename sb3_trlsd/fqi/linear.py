@@ -23,13 +23,11 @@ __all__ = ["LinearFQISolver", "fit_linear_fqi", "fit_linear_fqi_runs"]
 
 
 class _ActionBlock(NamedTuple):
-    """The transitions of one action as the iterations use them, and the inverse of its Gram matrix."""
+    """The transitions of one action as the projection uses them, and the inverse of its Gram matrix."""
 
     action: int
     phi_t: np.ndarray  # X_a^T, (k, n_a)
-    next_phi_t: np.ndarray  # Phi(s')^T, (k, n_a)
-    terminated: np.ndarray | None  # (n_a,) bool; None when no s' of the block is absorbing
-    rows: np.ndarray  # row of each column in the order of extend calls, (n_a,) int
+    rows: np.ndarray | slice  # row of each column in the order of extend calls, (n_a,) int, or their range
     inverse: np.ndarray  # (X_a^T X_a + ridge I)^-1, (k, k), float64
 
 
@@ -41,10 +39,10 @@ class LinearFQISolver:
 
     Q(s, a) = theta_a . Phi(s) (eq. 3). Since Phi(s, a) is block-diagonal in the actions, the projection of
     eq. 4 splits into one ridge regression per action, theta_a = (X_a^T X_a + ridge I)^-1 X_a^T y_a. The
-    transitions of each action are stored as columns that grow in place (an ``extend`` copies only the new
-    ones), and X_a^T X_a + ridge I is kept as a running sum, its inverse (k x k, from a Cholesky
-    factorisation) cached until the action gets new rows: a fit only recomputes the targets y and
-    multiplies.
+    transitions' Phi(s) are stored action by action as columns that grow in place (an ``extend`` copies
+    only the new ones), their Phi(s') in the order they came (one product gives Q(s', .) of all of them),
+    and X_a^T X_a + ridge I is kept as a running sum, its inverse (k x k, from a Cholesky factorisation)
+    cached until the action gets new rows: a fit only recomputes the targets y and multiplies.
 
     :param n_features: k, the width of Phi(s)
     :param n_actions: number of actions
@@ -72,10 +70,11 @@ class LinearFQISolver:
             raise ValueError(f"dtype must be float32 or float64, got {self.dtype}")
         self.n_features, self.n_actions, self.ridge = int(n_features), int(n_actions), float(ridge)
         k = self.n_features
-        self._phi_t = [GrowableColumns(k, self.dtype) for _ in range(n_actions)]
-        self._next_phi_t = [GrowableColumns(k, self.dtype) for _ in range(n_actions)]
-        self._terminated = [GrowableColumns(1, bool) for _ in range(n_actions)]
-        self._rows = [GrowableColumns(1, np.int64) for _ in range(n_actions)]
+        self._phi_t = [GrowableColumns(k, self.dtype) for _ in range(n_actions)]  # X_a^T, action by action
+        self._rows = [GrowableColumns(1, np.int64) for _ in range(n_actions)]  # the row of each column
+        self._next_phi_t = GrowableColumns(k, self.dtype)  # Phi(s')^T of every row, in order
+        self._terminated = GrowableColumns(1, bool)
+        self._any_terminated = False
         self._gram = np.tile(self.ridge * np.eye(k), (n_actions, 1, 1))  # X_a^T X_a + ridge I, (A, k, k)
         self._inverse: list[np.ndarray | None] = [None] * n_actions  # cached until the action grows
         self.n_transitions = 0
@@ -121,9 +120,10 @@ class LinearFQISolver:
             self._gram[a] += block.T @ block
             self._inverse[a] = None
             self._phi_t[a].append(stored_phi[rows].T)
-            self._next_phi_t[a].append(stored_next_phi[rows].T)
-            self._terminated[a].append(terminated[rows])
             self._rows[a].append(self.n_transitions + rows)
+        self._next_phi_t.append(stored_next_phi.T)
+        self._terminated.append(terminated)
+        self._any_terminated = self._any_terminated or bool(terminated.any())
         self.n_transitions += n
 
     def _storable(self, features: np.ndarray) -> np.ndarray:
@@ -146,16 +146,21 @@ class LinearFQISolver:
         """The actions with samples, their columns and inverted Gram matrices."""
         return [
             _ActionBlock(
-                action=a,
-                phi_t=self._phi_t[a].view(),
-                next_phi_t=self._next_phi_t[a].view(),
-                terminated=self._terminated[a].view()[0] if self._terminated[a].view().any() else None,
-                rows=self._rows[a].view()[0],
-                inverse=self.inverse(a),
+                action=a, phi_t=self._phi_t[a].view(), rows=self._rows[a].view()[0], inverse=self.inverse(a)
             )
             for a in range(self.n_actions)
             if len(self._rows[a])
         ]
+
+    @property
+    def next_phi_t(self) -> np.ndarray:
+        """Phi(s')^T of every row in the order they came, (k, n), a view."""
+        return self._next_phi_t.view()
+
+    @property
+    def terminated(self) -> np.ndarray | None:
+        """Whether each row's s' is absorbing, (n,); None when none is."""
+        return self._terminated.view()[0] if self._any_terminated else None
 
     def fit(
         self,
@@ -184,18 +189,12 @@ class LinearFQISolver:
         )[0]
 
 
-class _RunBlock(NamedTuple):
-    """One action block of one run's own rows, with the run's rewards of those rows."""
-
-    block: _ActionBlock
-    rewards: np.ndarray  # (n_a,) in the storage precision
-
-
 class _Run(NamedTuple):
-    """What one run of ``fit_linear_fqi_runs`` fits: its own blocks, projections and bounds."""
+    """What one run of ``fit_linear_fqi_runs`` fits: its own rows, projections and bounds."""
 
     theta0: np.ndarray  # (n_actions, k) float64
-    own_blocks: list[_RunBlock]
+    own: LinearFQISolver | None  # its own rows
+    own_rewards: np.ndarray  # its rewards of them, (n_own,) in the storage precision
     inverse: np.ndarray  # (n_actions, k, k): (G_a + G_a,r - ridge I)^-1, identity where a has no row
     has_rows: np.ndarray  # (n_actions,) bool
     bounds: tuple[float, float]  # ``return_bounds`` of its rewards
@@ -235,7 +234,7 @@ def _projection_of(
 class _OwnRows(NamedTuple):
     """The own rows of the active runs side by side, padded to the longest (a padded row weighs 0)."""
 
-    phi_t: np.ndarray  # (runs, k, n) X^T of every own row, the actions' blocks one after the other
+    phi_t: np.ndarray  # (runs, k, n) X^T of every own row, in order
     next_phi_t: np.ndarray  # (runs, k, n)
     action_mask: np.ndarray  # (runs, n_actions, n): 1 where the row is of that action, 0 elsewhere
     rewards: np.ndarray  # (runs, n)
@@ -243,7 +242,7 @@ class _OwnRows(NamedTuple):
 
     @classmethod
     def of(cls, runs: list[_Run], n_actions: int, k: int, dtype: np.dtype) -> _OwnRows:
-        n = max((sum(len(own.rewards) for own in run.own_blocks) for run in runs), default=0)
+        n = max((len(run.own_rewards) for run in runs), default=0)
         rows = cls(
             np.zeros((len(runs), k, n), dtype),
             np.zeros((len(runs), k, n), dtype),
@@ -252,16 +251,16 @@ class _OwnRows(NamedTuple):
             np.zeros((len(runs), n), dtype=bool),
         )
         for i, run in enumerate(runs):
-            start = 0
-            for own in run.own_blocks:
-                columns = slice(start, start + len(own.rewards))
-                rows.phi_t[i, :, columns] = own.block.phi_t
-                rows.next_phi_t[i, :, columns] = own.block.next_phi_t
-                rows.action_mask[i, own.block.action, columns] = 1.0
-                rows.rewards[i, columns] = own.rewards
-                if own.block.terminated is not None:
-                    rows.terminated[i, columns] = own.block.terminated
-                start = columns.stop
+            if run.own is None or not run.own.n_transitions:
+                continue
+            n_own = run.own.n_transitions
+            rows.next_phi_t[i, :, :n_own] = run.own.next_phi_t
+            rows.rewards[i, :n_own] = run.own_rewards
+            if run.own.terminated is not None:
+                rows.terminated[i, :n_own] = run.own.terminated
+            for block in run.own._blocks():
+                rows.phi_t[i, :, block.rows] = block.phi_t.T
+                rows.action_mask[i, block.action, block.rows] = 1.0
         return rows
 
     def kept(self, keep: np.ndarray) -> _OwnRows:
@@ -274,13 +273,14 @@ class _BatchedFit:
     def __init__(
         self, shared: LinearFQISolver | None, runs: list[_Run], shared_rewards: np.ndarray, gamma: float
     ):
+        self.shared = shared
         self.shared_blocks = [] if shared is None else shared._blocks()
         self.runs, self.gamma = runs, gamma
         self.dtype = shared_rewards.dtype
         self.n_actions, self.k = runs[0].theta0.shape
         self.active = np.array([r for r, run in enumerate(runs) if run.n_rows], dtype=np.int64)
-        # Per active run, kept as the set shrinks: shared blocks' rewards, bounds, projections, own rows.
-        self.block_rewards = [shared_rewards[self.active][:, block.rows] for block in self.shared_blocks]
+        # Per active run, kept as the set shrinks: shared rows' rewards, bounds, projections, own rows.
+        self.shared_rewards = shared_rewards[self.active]
         bounds = np.array([runs[r].bounds for r in self.active], dtype=self.dtype).reshape(-1, 2)
         self.low, self.high = bounds[:, :1], bounds[:, 1:]
         self.inverses = np.stack([runs[r].inverse for r in self.active]) if len(self.active) else None
@@ -290,30 +290,27 @@ class _BatchedFit:
     def drop(self, done: np.ndarray) -> None:
         """Stop iterating the active runs where ``done``."""
         keep = ~done
-        self.active = self.active[keep]
-        self.block_rewards = [rewards[keep] for rewards in self.block_rewards]
+        self.active, self.shared_rewards = self.active[keep], self.shared_rewards[keep]
         self.low, self.high, self.has_rows = self.low[keep], self.high[keep], self.has_rows[keep]
         self.inverses = None if self.inverses is None else self.inverses[keep]
         self.own = self.own.kept(keep)
 
-    def targets(self, theta: np.ndarray) -> tuple[list[np.ndarray], np.ndarray]:
+    def targets(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """
-        y = r + gamma max_a' theta_a' . Phi(s') (eq. 4): (active, n_a) for each shared action block, from
-        one product for all active runs, and (active, n) over the own rows, from one batched product.
+        y = r + gamma max_a' theta_a' . Phi(s') (eq. 4) of every active run: (active, n_shared) from one
+        product over the shared rows, and (active, n_own) from one batched product over the own rows.
         """
         stored = theta.astype(self.dtype, copy=False)
-        flat = stored.reshape(len(self.active) * self.n_actions, self.k)
-        shared_y = [
-            bellman_targets_by_action(
-                rewards,
-                (flat @ block.next_phi_t).reshape(len(self.active), self.n_actions, -1),
-                block.terminated,
-                self.gamma,
-                self.low,
-                self.high,
+        m = len(self.active)
+        if self.shared is None:
+            shared_y = self.shared_rewards
+        else:
+            next_q = (stored.reshape(m * self.n_actions, self.k) @ self.shared.next_phi_t).reshape(
+                m, self.n_actions, -1
             )
-            for block, rewards in zip(self.shared_blocks, self.block_rewards, strict=True)
-        ]
+            shared_y = bellman_targets_by_action(
+                self.shared_rewards, next_q, self.shared.terminated, self.gamma, self.low, self.high
+            )
         own = self.own
         if not own.rewards.shape[1]:
             return shared_y, own.rewards
@@ -322,23 +319,25 @@ class _BatchedFit:
         )
         return shared_y, own_y
 
-    def projected(self, theta: np.ndarray, shared_y: list, own_y: np.ndarray) -> np.ndarray:
+    def projected(self, theta: np.ndarray, shared_y: np.ndarray, own_y: np.ndarray) -> np.ndarray:
         """theta_a <- (X_a^T X_a + ridge I)^-1 X_a^T y_a (eq. 4, block a) for every active run."""
         moments = np.zeros((len(self.active), self.n_actions, self.k))
-        for block, y in zip(self.shared_blocks, shared_y, strict=True):
-            moments[:, block.action] += (block.phi_t @ y.T).T
+        for block in self.shared_blocks:
+            moments[:, block.action] += shared_y[:, block.rows] @ block.phi_t.T
         if own_y.shape[1]:
             # X_a^T y_a over the own rows of action a, every action and run in one batched product.
             moments += np.matmul(self.own.action_mask * own_y[:, None, :], self.own.phi_t.transpose(0, 2, 1))
         new = np.einsum("rakj,raj->rak", self.inverses, moments)
         return np.where(self.has_rows, new, theta)
 
-    def residual(self, i: int, theta: np.ndarray, shared_y: list, own_y: np.ndarray) -> float:
+    def residual(self, i: int, theta: np.ndarray, shared_y: np.ndarray, own_y: np.ndarray) -> float:
         """The RMS Bellman residual sqrt(mean (y - X theta)^2) of active run ``i``."""
         stored = theta.astype(self.dtype, copy=False)
         squared_error = sum(
-            float(np.sum((y[i] - stored[block.action] @ block.phi_t) ** 2, dtype=np.float64))
-            for block, y in zip(self.shared_blocks, shared_y, strict=True)
+            float(
+                np.sum((shared_y[i, block.rows] - stored[block.action] @ block.phi_t) ** 2, dtype=np.float64)
+            )
+            for block in self.shared_blocks
         )
         if own_y.shape[1]:
             own_error = self.own.action_mask[i] * (own_y[i] - stored @ self.own.phi_t[i])  # (n_actions, n)
@@ -404,13 +403,11 @@ def fit_linear_fqi_runs(
             raise ValueError(f"theta0 must have shape {(n_actions, k)}, got {theta.shape}")
         shared_rewards[r] = run_rewards[:n_shared]
         projections = [_projection_of(shared, own_rows, a) for a in range(n_actions)]
-        own_rewards = run_rewards[n_shared:]
         runs.append(
             _Run(
                 theta0=theta,
-                own_blocks=[]
-                if own_rows is None
-                else [_RunBlock(b, own_rewards[b.rows].astype(dtype)) for b in own_rows._blocks()],
+                own=own_rows,
+                own_rewards=run_rewards[n_shared:].astype(dtype),
                 inverse=np.stack([np.eye(k) if p is None else p for p in projections]),
                 has_rows=np.array([p is not None for p in projections]),
                 bounds=return_bounds(run_rewards, gamma),
@@ -441,7 +438,7 @@ def fit_linear_fqi_runs(
                 break
             if done.any():
                 theta = theta[~done]
-                shared_y, own_y = [y[~done] for y in shared_y], own_y[~done]
+                shared_y, own_y = shared_y[~done], own_y[~done]
                 fit.drop(done)
     assert all(result is not None for result in results)
     return results  # type: ignore[return-value]
