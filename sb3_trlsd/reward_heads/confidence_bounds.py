@@ -1,0 +1,632 @@
+"""Reward heads with other confidence bounds than the paper's eq. 9-10 (issue 18, item 1).
+
+The paper builds CI_tau on UCB's sqrt(log|Xi| / W): a count of neighbours. Three other bounds of the bandit
+literature fit the same ``RewardHead`` interface, so that TRLSD's optimism can be compared across them:
+
+- ``RidgePosteriorRewardHead``: the ellipsoidal bound of OFUL / LinUCB, CI(s) = beta sqrt(phi(s)^T A^-1
+  phi(s)) with A = Phi^T Phi + lambda I (Abbasi-Yadkori, Pal & Szepesvari, "Improved algorithms for linear
+  stochastic bandits", NeurIPS 2011), and their rarely-switching refit rule: refit once det A has grown by
+  a factor (``refit_due``).
+- ``ThompsonRidgeRewardHead``: posterior sampling of the ridge weights, one draw per refit (PSRL with known
+  dynamics: Osband, Russo & Van Roy, "(More) efficient reinforcement learning via posterior sampling",
+  NeurIPS 2013).
+- ``BernsteinRewardHead``: the empirical-Bernstein bound of UCB-V, kernel-weighted (Audibert, Munos &
+  Szepesvari, "Exploration-exploitation tradeoff using variance estimates in multi-armed bandits", TCS
+  2009): its CI shrinks faster where the neighbours agree on the reward.
+
+The maths is in plain functions over arrays (``posterior_widths``, ``sample_posterior_weights``,
+``kernel_reward_sums``, ``empirical_bernstein_width``); the heads hold the running sums.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import NamedTuple
+
+import numpy as np
+
+from sb3_trlsd.arrays import GrowableArray
+from sb3_trlsd.features import gaussian_similarity
+from sb3_trlsd.reward_heads.base import (
+    DEFAULT_W_FLOOR,
+    RewardHead,
+    RewardTracker,
+    check_positive,
+    log_sample_count,
+)
+from sb3_trlsd.reward_heads.ridge import KERNEL_BLOCK
+
+__all__ = [
+    "BernsteinRewardHead",
+    "BernsteinTracker",
+    "PosteriorSnapshot",
+    "PosteriorTracker",
+    "RidgePosteriorRewardHead",
+    "ThompsonRidgeRewardHead",
+    "empirical_bernstein_width",
+    "kernel_mean",
+    "kernel_reward_sums",
+    "posterior_widths",
+    "sample_posterior_weights",
+]
+
+StatesFn = Callable[[np.ndarray], np.ndarray]
+
+
+# ------------------------------------------------------------------------------------------- linear posterior
+def posterior_widths(phi: np.ndarray, gram_inverse: np.ndarray) -> np.ndarray:
+    """
+    The ellipsoidal width ||phi(s)||_{A^-1} = sqrt(phi(s)^T A^-1 phi(s)) of OFUL / LinUCB, row by row.
+
+    :param phi: Phi(s), (n, k)
+    :param gram_inverse: A^-1, (k, k), symmetric positive definite
+    :return: (n,)
+    """
+    quadratic = np.einsum("ij,ij->i", phi @ gram_inverse, phi)  # phi_i^T A^-1 phi_i
+    return np.sqrt(np.maximum(quadratic, 0.0))  # >= 0 up to rounding
+
+
+def sample_posterior_weights(
+    rng: np.random.Generator, weights: np.ndarray, gram: np.ndarray, scale: float, n_draws: int = 1
+) -> np.ndarray:
+    """
+    Draws w~ ~ N(w_hat, v^2 A^-1): with A = L L^T (Cholesky), w~ = w_hat + v L^-T z, z ~ N(0, I), whose
+    covariance is v^2 L^-T L^-1 = v^2 A^-1. ``n_draws`` draws at once take the same normals as as many
+    single draws in a row.
+
+    :param rng: the generator of z
+    :param weights: the posterior mean w_hat, (k,)
+    :param gram: A = Phi^T Phi + lambda I, (k, k)
+    :param scale: the posterior scale v (>= 0)
+    :param n_draws: the number of draws
+    :return: (n_draws, k)
+    """
+    lower = np.linalg.cholesky(gram)  # A = L L^T
+    normals = rng.standard_normal((n_draws, len(weights)))  # z, one row per draw
+    return weights + scale * np.linalg.solve(lower.T, normals.T).T  # w_hat + v L^-T z
+
+
+class PosteriorSnapshot(NamedTuple):
+    """What the linear-posterior heads' uncertainty and refit rule depend on, as of a refit."""
+
+    gram_inverse: np.ndarray | None  # A^-1, (k, k); None before the first sample (A = lambda I)
+    log_det_gram: float | None  # log det A; None before the first sample
+
+
+class RidgePosteriorRewardHead(RewardHead):
+    """
+    Ridge regression of the reward on Phi(s) with the ellipsoidal confidence bound of OFUL / LinUCB
+    (Abbasi-Yadkori, Pal & Szepesvari, "Improved algorithms for linear stochastic bandits", NeurIPS 2011):
+
+        R^(s) = Phi(s) . w_hat,  w_hat = A^-1 Phi^T r,  A = Phi^T Phi + lambda I
+        CI(s) = kappa sqrt(phi(s)^T A^-1 phi(s))
+
+    ``kappa`` is a constant beta: OFUL's beta_t grows like sqrt(log det A) and needs the noise level and a
+    bound on ||w||, which TRLSD does not assume (LinUCB's choice). A >= lambda I bounds the width by
+    ||phi(s)|| / sqrt(lambda): no floor is needed, but the width vanishes where the features do (far from
+    every RBF centre), where eq. 9 is at its largest.
+
+    The refit rule of rarely-switching OFUL, det A_now >= update_ratio * det A_then, is ``refit_due``; the
+    uncertainty (``uncertainty_then_and_now``) also serves the paper's pointwise trigger.
+
+    :param features: Phi, states (n, d) -> (n, k) (e.g. an ``RBFGrid``; picklable, no lambda)
+    :param kappa: optimism beta, >= 0
+    :param ridge: Tikhonov regularisation lambda (1 in the paper), > 0
+    :param r_max: optional cap on R~
+    """
+
+    def __init__(
+        self, features: StatesFn, kappa: float = 0.1, ridge: float = 1.0, r_max: float | None = None
+    ):
+        super().__init__(kappa, r_max)
+        if not callable(features):
+            raise ValueError(f"features must be Phi, a callable states (n, d) -> (n, k), got {features!r}")
+        self.features = features
+        self.ridge = check_positive("ridge", ridge, "the Tikhonov regularisation lambda, 1 in the paper")
+        self._gram: np.ndarray | None = None  # A = Phi^T Phi + lambda I, (k, k)
+        self._moments: np.ndarray | None = None  # Phi^T r, (k,)
+        # Derived from A and Phi^T r on demand, None when stale.
+        self._weights: np.ndarray | None = None
+        self._gram_inverse: np.ndarray | None = None
+        self._log_det_gram: float | None = None
+
+    def _repr_items(self) -> list[str]:
+        return [*super()._repr_items(), f"ridge={self.ridge:g}"]
+
+    def _update(self, states: np.ndarray, rewards: np.ndarray) -> None:
+        phi = self.features(states)  # (n, k)
+        if self._gram is None:
+            self._gram = self.ridge * np.eye(phi.shape[1])
+            self._moments = np.zeros(phi.shape[1])
+        assert self._moments is not None
+        self._gram += phi.T @ phi
+        self._moments += phi.T @ rewards
+        self._weights = self._gram_inverse = self._log_det_gram = None
+
+    @property
+    def gram(self) -> np.ndarray | None:
+        """A = Phi^T Phi + lambda I, (k, k), or None before the first sample."""
+        return self._gram
+
+    @property
+    def weights(self) -> np.ndarray | None:
+        """The ridge solution w_hat = A^-1 Phi^T r, (k,), or None before the first sample."""
+        if self._weights is None and self._gram is not None:
+            self._weights = np.linalg.solve(self._gram, self._moments)
+        return self._weights
+
+    @property
+    def gram_inverse(self) -> np.ndarray | None:
+        """A^-1, (k, k), symmetric, or None before the first sample."""
+        if self._gram_inverse is None and self._gram is not None:
+            inverse = np.linalg.inv(self._gram)
+            self._gram_inverse = 0.5 * (inverse + inverse.T)  # symmetric up to rounding: make it exactly
+        return self._gram_inverse
+
+    @property
+    def log_det_gram(self) -> float | None:
+        """log det A (by ``slogdet``: det A itself overflows with many samples), or None before any."""
+        if self._log_det_gram is None and self._gram is not None:
+            sign, log_det = np.linalg.slogdet(self._gram)
+            assert sign > 0, "A = Phi^T Phi + lambda I is positive definite"
+            self._log_det_gram = float(log_det)
+        return self._log_det_gram
+
+    def estimate(self, states: np.ndarray) -> np.ndarray:
+        return self.estimate_from_features(self.features(np.asarray(states, dtype=np.float64)))
+
+    def estimate_from_features(self, phi: np.ndarray) -> np.ndarray:
+        """
+        R^ from precomputed features.
+
+        :param phi: Phi(s), (n, k)
+        :return: (n,), 0 before the first sample
+        """
+        weights = self.weights
+        return np.zeros(len(phi)) if weights is None else phi @ weights
+
+    def widths_from_features(self, phi: np.ndarray, gram_inverse: np.ndarray | None) -> np.ndarray:
+        """
+        sqrt(phi^T A^-1 phi) for a given A^-1 (None: the prior A = lambda I, sqrt(||phi||^2 / lambda)).
+
+        :param phi: Phi(s), (n, k)
+        :param gram_inverse: A^-1 (k, k) or None
+        :return: (n,)
+        """
+        if gram_inverse is None:
+            return np.sqrt(np.einsum("ij,ij->i", phi, phi) / self.ridge)
+        return posterior_widths(phi, gram_inverse)
+
+    def uncertainty(self, states: np.ndarray) -> np.ndarray:
+        """
+        The kappa-free width sqrt(phi(s)^T A^-1 phi(s)).
+
+        :param states: (n, d)
+        :return: (n,)
+        """
+        return self.widths_from_features(
+            self.features(np.asarray(states, dtype=np.float64)), self.gram_inverse
+        )
+
+    def bonus_from_features(self, phi: np.ndarray) -> np.ndarray:
+        """
+        CI from precomputed features: kappa sqrt(phi^T A^-1 phi).
+
+        :param phi: Phi(s), (n, k)
+        :return: (n,)
+        """
+        if self.kappa == 0:
+            return np.zeros(len(phi))
+        return self.kappa * self.widths_from_features(phi, self.gram_inverse)
+
+    def bonus(self, states: np.ndarray) -> np.ndarray:
+        return self.bonus_from_features(self.features(np.asarray(states, dtype=np.float64)))
+
+    def optimistic(self, states: np.ndarray) -> np.ndarray:
+        return self.optimistic_from_features(self.features(np.asarray(states, dtype=np.float64)))
+
+    def optimistic_from_features(self, phi: np.ndarray) -> np.ndarray:
+        """
+        R~ = R^ + CI from precomputed features, capped at ``r_max``.
+
+        :param phi: Phi(s), (n, k)
+        :return: (n,)
+        """
+        return self.clip_optimistic(self.estimate_from_features(phi) + self.bonus_from_features(phi))
+
+    def snapshot(self) -> PosteriorSnapshot:
+        gram_inverse = self.gram_inverse
+        return PosteriorSnapshot(None if gram_inverse is None else gram_inverse.copy(), self.log_det_gram)
+
+    def uncertainty_as_of(self, snapshot: PosteriorSnapshot, states: np.ndarray) -> np.ndarray:
+        phi = self.features(np.asarray(states, dtype=np.float64))
+        return self.widths_from_features(phi, snapshot.gram_inverse)
+
+    def uncertainty_then_and_now(
+        self, snapshot: PosteriorSnapshot, states: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        phi = self.features(np.asarray(states, dtype=np.float64))  # once for both
+        return (
+            self.widths_from_features(phi, snapshot.gram_inverse),
+            self.widths_from_features(phi, self.gram_inverse),
+        )
+
+    def refit_due(self, snapshot: PosteriorSnapshot, state: np.ndarray, update_ratio: float) -> bool:
+        """
+        The refit rule of rarely-switching OFUL (Abbasi-Yadkori et al. 2011, section 5): refit once
+        det A_now >= update_ratio * det A_then (2 there: determinant doubling), i.e. once the confidence
+        ellipsoid's volume has shrunk by sqrt(update_ratio). Computed on log det (``slogdet``), which stays
+        finite where det A overflows. The rule is global: ``state`` is not used, it is the argument the
+        pointwise trigger of section 3 takes, so that a ``TaskLearner`` can call either rule the same way.
+
+        :param snapshot: ``snapshot()`` at the last refit
+        :param state: the state just encountered (d,) or (1, d), unused
+        :param update_ratio: the factor det A must have grown by (> 1)
+        :return: whether the task is due for a refit
+        """
+        if not update_ratio > 1:
+            raise ValueError(f"update_ratio must be > 1 (the factor det A must grow by), got {update_ratio}")
+        log_det_now = self.log_det_gram
+        if log_det_now is None or self._gram is None:  # no sample yet: A is still lambda I
+            return False
+        log_det_then = snapshot.log_det_gram
+        if log_det_then is None:  # the refit was before any sample: A was lambda I
+            log_det_then = len(self._gram) * float(np.log(self.ridge))
+        return bool(log_det_now - log_det_then >= np.log(update_ratio))
+
+    def tracker(self, states: np.ndarray) -> PosteriorTracker:
+        return PosteriorTracker(self, states)
+
+
+class ThompsonRidgeRewardHead(RidgePosteriorRewardHead):
+    """
+    Posterior sampling of the ridge weights, as PSRL does with known dynamics (Osband, Russo & Van Roy,
+    "(More) efficient reinforcement learning via posterior sampling", NeurIPS 2013): at each refit one
+    draw w~ ~ N(w_hat, v^2 A^-1), A = Phi^T Phi + lambda I, and
+
+        R~(s) = Phi(s) . w~,  i.e. R^(s) = Phi(s) . w_hat and CI(s) = Phi(s) . (w~ - w_hat)
+
+    with ``kappa`` = v, the posterior scale (the reward noise's standard deviation makes the posterior the
+    Bayesian one under a N(0, v^2 / lambda I) prior: 1 on the paper's maze; 0 is the non-optimistic method).
+    The "CI" is a random deviation, negative at some states: optimism comes from acting greedily on a
+    plausible reward function, not from a bonus.
+
+    When a new draw is made: FQI must see one reward function per fit, and each fit a draw from the
+    posterior of its own moment. ``snapshot()`` (which a ``TaskLearner`` takes right after each refit)
+    spends the current draw; the first R~ asked for after the head has received a new sample is then a new
+    draw from the posterior as of that moment (a ``TaskLearner`` asks at its next refit). Reads in between
+    (a picture of the refit just made) see the draw the fit used. ``resample()`` asks for a new draw at the
+    next read, for users that do not snapshot (e.g. a relabelling buffer). The generator's state is part of
+    the head: a pickled or deep-copied head draws what the original would.
+
+    The uncertainty, the refit rule and the tracker are those of ``RidgePosteriorRewardHead``.
+
+    :param features: Phi, states (n, d) -> (n, k) (picklable, no lambda)
+    :param kappa: the posterior scale v, >= 0
+    :param ridge: Tikhonov regularisation lambda, > 0
+    :param seed: seed of the head's generator of draws (an int >= 0, or None for fresh entropy); every
+        deep copy of a head starts from the same state, so copies for several tasks draw the same normals
+    :param r_max: optional cap on R~
+    """
+
+    def __init__(
+        self,
+        features: StatesFn,
+        kappa: float = 0.1,
+        ridge: float = 1.0,
+        seed: int | None = None,
+        r_max: float | None = None,
+    ):
+        super().__init__(features, kappa=kappa, ridge=ridge, r_max=r_max)
+        if seed is not None and not (isinstance(seed, (int, np.integer)) and seed >= 0):
+            raise ValueError(f"seed must be an integer >= 0 or None (fresh entropy), got {seed!r}")
+        self.seed = None if seed is None else int(seed)
+        self._rng = np.random.default_rng(self.seed)
+        self._sampled_weights: np.ndarray | None = None  # w~ of the current draw, (k,)
+        # A new draw is due at the first read once n_samples exceeds this; None: keep the current draw.
+        self._redraw_after: int | None = None
+
+    def _repr_items(self) -> list[str]:
+        return [*super()._repr_items(), f"seed={self.seed}"]
+
+    def resample(self) -> None:
+        """Spend the current draw: the next R~ asked for is a new draw from the posterior as of then."""
+        self._redraw_after = -1
+
+    def sampled_weights(self, n_features: int) -> np.ndarray:
+        """
+        The current draw w~, drawn now if due (see the class docstring).
+
+        :param n_features: k, the width of Phi (needed before the first sample, when A = lambda I)
+        :return: (k,)
+        """
+        redraw_due = self._redraw_after is not None and self.n_samples > self._redraw_after
+        if self._sampled_weights is None or redraw_due:
+            weights = self.weights
+            mean = np.zeros(n_features) if weights is None else weights
+            gram = self.ridge * np.eye(n_features) if self._gram is None else self._gram
+            self._sampled_weights = sample_posterior_weights(self._rng, mean, gram, self.kappa)[0]
+            self._redraw_after = None
+        assert len(self._sampled_weights) == n_features
+        return self._sampled_weights
+
+    def bonus_from_features(self, phi: np.ndarray) -> np.ndarray:
+        """
+        CI = Phi(s) . (w~ - w_hat), so that R^ + CI = Phi(s) . w~.
+
+        :param phi: Phi(s), (n, k)
+        :return: (n,)
+        """
+        if self.kappa == 0:
+            return np.zeros(len(phi))
+        deviation = self.sampled_weights(phi.shape[1])
+        weights = self.weights
+        return phi @ (deviation if weights is None else deviation - weights)
+
+    def optimistic_from_features(self, phi: np.ndarray) -> np.ndarray:
+        """
+        R~ = Phi(s) . w~, capped at ``r_max``: computed from w~ alone, so that it stays the same to the bit
+        while w_hat moves between two refits.
+
+        :param phi: Phi(s), (n, k)
+        :return: (n,)
+        """
+        if self.kappa == 0:
+            return self.clip_optimistic(self.estimate_from_features(phi))
+        return self.clip_optimistic(phi @ self.sampled_weights(phi.shape[1]))
+
+    def snapshot(self) -> PosteriorSnapshot:
+        # The refit moment: the draw the fit used is spent once a new sample arrives.
+        self._redraw_after = self.n_samples
+        return super().snapshot()
+
+
+class PosteriorTracker(RewardTracker):
+    """
+    R~ of a ``RidgePosteriorRewardHead`` (or ``ThompsonRidgeRewardHead``) on a growable set of query states
+    with their features cached: each call costs products with the current w_hat and A^-1 (or w~), O(m k^2),
+    and no feature evaluation.
+
+    :param head: the linear-posterior head
+    :param states: the initial query states (m, d)
+    """
+
+    head: RidgePosteriorRewardHead
+
+    def __init__(self, head: RidgePosteriorRewardHead, states: np.ndarray):
+        self._phi: GrowableArray | None = None  # Phi(query), (m, k)
+        super().__init__(head, states)
+
+    def extend(self, states: np.ndarray) -> None:
+        states = np.asarray(states, dtype=np.float64)
+        phi = self.head.features(states)
+        if self._phi is None:
+            self._phi = GrowableArray(phi.shape[1])
+        self._phi.append(phi)
+        super().extend(states)
+
+    @property
+    def phi(self) -> np.ndarray:
+        """Phi of the query states, (m, k), a view."""
+        assert self._phi is not None  # set by extend in __init__
+        return self._phi.view()
+
+    def estimate(self) -> np.ndarray:
+        return self.head.estimate_from_features(self.phi)
+
+    def bonus(self) -> np.ndarray:
+        return self.head.bonus_from_features(self.phi)
+
+    def optimistic(self) -> np.ndarray:
+        return self.head.optimistic_from_features(self.phi)
+
+
+# --------------------------------------------------------------------------------------- empirical Bernstein
+def kernel_reward_sums(
+    points: np.ndarray, sample_points: np.ndarray, rewards: np.ndarray, sigma: float
+) -> np.ndarray:
+    """
+    The kernel-weighted sums (W, sum_j w_j r_j, sum_j w_j r_j^2) at each query, w_j(s) = S(s, s_j) (eq. 6).
+
+    :param points: query states (n, d)
+    :param sample_points: sample states (m, d)
+    :param rewards: their rewards (m,)
+    :param sigma: width of the similarity (> 0)
+    :return: (n, 3)
+    """
+    similarity = gaussian_similarity(points, sample_points, sigma)  # (n, m), eq. 6
+    return similarity @ np.column_stack([np.ones(len(rewards)), rewards, rewards**2])
+
+
+def kernel_mean(sums: np.ndarray, w_floor: float) -> tuple[np.ndarray, np.ndarray]:
+    """
+    The kernel-weighted mean mu(s) = sum w r / W and variance V(s) = sum w r^2 / W - mu^2 of the rewards,
+    W floored at ``w_floor`` (V >= 0 still holds with the floor, by Cauchy-Schwarz; clipped for rounding).
+
+    :param sums: ``kernel_reward_sums``, (n, 3)
+    :param w_floor: floor on W (> 0)
+    :return: mu (n,), V (n,)
+    """
+    weights = np.maximum(sums[:, 0], w_floor)
+    mean = sums[:, 1] / weights
+    return mean, np.maximum(sums[:, 2] / weights - mean**2, 0.0)
+
+
+def empirical_bernstein_width(
+    sums: np.ndarray, log_count: float, reward_range: float, w_floor: float
+) -> np.ndarray:
+    """
+    UCB-V's empirical-Bernstein width with the count replaced by the neighbouring weight W(s) (eq. 8):
+    sqrt(2 V(s) L / W(s)) + 3 b L / W(s), L = log|Xi| (Audibert, Munos & Szepesvari 2009, Theorem 1).
+
+    :param sums: ``kernel_reward_sums``, (n, 3)
+    :param log_count: L (see ``log_sample_count``)
+    :param reward_range: b, the range of the rewards
+    :param w_floor: floor on W (> 0)
+    :return: (n,)
+    """
+    weights = np.maximum(sums[:, 0], w_floor)
+    _, variance = kernel_mean(sums, w_floor)
+    return np.sqrt(2.0 * variance * log_count / weights) + 3.0 * reward_range * log_count / weights
+
+
+class BernsteinRewardHead(RewardHead):
+    """
+    A kernel-weighted empirical-Bernstein bound, after UCB-V (Audibert, Munos & Szepesvari,
+    "Exploration-exploitation tradeoff using variance estimates in multi-armed bandits", TCS 2009). With
+    the weights w_j(s) = S(s, s_j) of eq. 6 and W(s) = sum_j w_j(s) (eq. 8):
+
+        R^(s) = mu(s) = sum_j w_j(s) r_j / W(s)          (the kernel mean, Nadaraya-Watson)
+        V(s) = sum_j w_j(s) r_j^2 / W(s) - mu(s)^2        (how much the neighbours disagree)
+        CI(s) = kappa (sqrt(2 V(s) L / W(s)) + 3 b L / W(s)),  L = log|Xi_tau|
+
+    R^ is the kernel mean rather than the ridge estimate because V is the spread around it: the bound is
+    about that estimator. kappa multiplies the whole bound as in eq. 9 (1 is UCB-V's constant). Where the
+    neighbours agree (V -> 0) the CI decays like 1 / W instead of eq. 9's 1 / sqrt(W); under the maze's
+    N(0, 1) noise V ~ 1 and the first term is sqrt(2) times eq. 9's width. W is floored at ``w_floor``, so
+    the CI is at most kappa 3 b L / w_floor far from every sample (see ``base.py``).
+
+    :param kappa: optimism, >= 0
+    :param sigma: width of the similarity (eq. 6) in state units, > 0
+    :param reward_range: b, the range of the rewards (UCB-V's rewards lie in [0, b]), > 0; 1 is the range of
+        the maze's expected rewards, whose observed rewards carry unbounded Gaussian noise: there b is a
+        scale of the second-order term, not a bound
+    :param w_floor: floor on W(s), > 0
+    :param r_max: optional cap on R~
+    """
+
+    def __init__(
+        self,
+        kappa: float = 0.1,
+        sigma: float = 0.2,
+        reward_range: float = 1.0,
+        w_floor: float = DEFAULT_W_FLOOR,
+        r_max: float | None = None,
+    ):
+        super().__init__(kappa, r_max)
+        for name, value, meaning in (
+            ("sigma", sigma, "the width of the similarity, eq. 6"),
+            ("reward_range", reward_range, "b, the range of the rewards"),
+        ):
+            if not (check_positive(name, value, meaning) < np.inf):
+                raise ValueError(f"{name} must be finite ({meaning}), got {value}")
+        self.sigma = float(sigma)
+        self.reward_range = float(reward_range)
+        self.w_floor = check_positive("w_floor", w_floor, "the floor of the neighbouring weight W")
+        self._states: GrowableArray | None = None  # s_j, (n, d)
+        self._rewards = GrowableArray(1)  # r_j, (n, 1)
+
+    def _repr_items(self) -> list[str]:
+        return [*super()._repr_items(), f"sigma={self.sigma:g}", f"reward_range={self.reward_range:g}"]
+
+    def _update(self, states: np.ndarray, rewards: np.ndarray) -> None:
+        if self._states is None:
+            self._states = GrowableArray(states.shape[1])
+        self._states.append(states)
+        self._rewards.append(rewards)
+
+    def reward_sums(self, states: np.ndarray, start: int = 0, stop: int | None = None) -> np.ndarray:
+        """
+        (W, sum w r, sum w r^2) at the query states over the samples ``start:stop`` (all by default), in
+        blocks of at most ``KERNEL_BLOCK`` (query, sample) pairs.
+
+        :param states: query states (n, d)
+        :param start: first sample
+        :param stop: end of the samples (exclusive), None for all
+        :return: (n, 3)
+        """
+        states = np.asarray(states, dtype=np.float64)
+        sums = np.zeros((len(states), 3))
+        if self._states is None:
+            return sums
+        samples, rewards = self._states.view(start, stop), self._rewards.view(start, stop)[:, 0]
+        block = max(1, KERNEL_BLOCK // max(1, len(states)))
+        for first in range(0, len(samples), block):
+            chunk = slice(first, first + block)
+            sums += kernel_reward_sums(states, samples[chunk], rewards[chunk], self.sigma)
+        return sums
+
+    def width_from_sums(self, sums: np.ndarray, n_samples: int) -> np.ndarray:
+        """
+        The kappa-free width from the kernel sums over ``n_samples`` samples.
+
+        :param sums: (n, 3)
+        :param n_samples: |Xi_tau| of the sums
+        :return: (n,)
+        """
+        return empirical_bernstein_width(sums, log_sample_count(n_samples), self.reward_range, self.w_floor)
+
+    def optimistic_from_sums(self, sums: np.ndarray) -> np.ndarray:
+        """
+        R~ = mu + kappa width, capped at ``r_max``, from the sums over all samples.
+
+        :param sums: (n, 3)
+        :return: (n,)
+        """
+        mean, _ = kernel_mean(sums, self.w_floor)
+        if self.kappa == 0:
+            return self.clip_optimistic(mean)
+        return self.clip_optimistic(mean + self.kappa * self.width_from_sums(sums, self.n_samples))
+
+    def estimate(self, states: np.ndarray) -> np.ndarray:
+        return kernel_mean(self.reward_sums(states), self.w_floor)[0]
+
+    def optimistic(self, states: np.ndarray) -> np.ndarray:
+        return self.optimistic_from_sums(self.reward_sums(states))  # one kernel sum for R^ and CI
+
+    def snapshot(self) -> int:
+        # Samples are only ever appended, so the first n samples are the head as of now.
+        return self.n_samples
+
+    def uncertainty_as_of(self, snapshot: int, states: np.ndarray) -> np.ndarray:
+        return self.width_from_sums(self.reward_sums(states, 0, snapshot), snapshot)
+
+    def uncertainty_then_and_now(self, snapshot: int, states: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        then = self.reward_sums(states, 0, snapshot)  # one similarity per sample for both
+        now = then + self.reward_sums(states, snapshot)
+        return self.width_from_sums(then, snapshot), self.width_from_sums(now, self.n_samples)
+
+    def tracker(self, states: np.ndarray) -> BernsteinTracker:
+        return BernsteinTracker(self, states)
+
+
+class BernsteinTracker(RewardTracker):
+    """
+    R~ of a ``BernsteinRewardHead`` on a growable set of query states with their kernel sums (W, sum w r,
+    sum w r^2) cached: each call folds in only the samples the head received since the previous one, so
+    relabelling m states after n new samples costs O(m n) instead of O(m |Xi_tau|).
+
+    :param head: the Bernstein head
+    :param states: the initial query states (m, d)
+    """
+
+    head: BernsteinRewardHead
+
+    def __init__(self, head: BernsteinRewardHead, states: np.ndarray):
+        self._sums = GrowableArray(3)  # the sums at the queries over the first _n_folded samples, (m, 3)
+        self._n_folded = head.n_samples
+        super().__init__(head, states)
+
+    def extend(self, states: np.ndarray) -> None:
+        states = np.asarray(states, dtype=np.float64)
+        super().extend(states)
+        self._sums.append(self.head.reward_sums(states, 0, self._n_folded))
+
+    def sums(self) -> np.ndarray:
+        """The kernel sums at the query states over all the head's samples, (m, 3), a view."""
+        if self.head.n_samples > self._n_folded:
+            # The sums are over samples: add the terms of the new ones only.
+            self._sums.view()[:] += self.head.reward_sums(self.states, self._n_folded, self.head.n_samples)
+        self._n_folded = self.head.n_samples
+        return self._sums.view()
+
+    def estimate(self) -> np.ndarray:
+        return kernel_mean(self.sums(), self.head.w_floor)[0]
+
+    def bonus(self) -> np.ndarray:
+        if self.head.kappa == 0:
+            return np.zeros(self.n_states)
+        return self.head.kappa * self.head.width_from_sums(self.sums(), self.head.n_samples)
+
+    def optimistic(self) -> np.ndarray:
+        return self.head.optimistic_from_sums(self.sums())
