@@ -8,6 +8,11 @@ Reward heads: the optimistic reward proxy R~_tau = R^_tau + CI_tau of one task (
   any cell function or a ``GridCells`` grid over the state Box; an optional set of allowed cells encodes
   the prior that rewards are zero elsewhere (``"corners"``: the grid's corner cells).
 - ``KnownRewardHead`` (``known.py``): the reward is known, CI = 0.
+- Other confidence bounds (``confidence_bounds.py``): ``RidgePosteriorRewardHead`` (OFUL / LinUCB's
+  sqrt(phi^T A^-1 phi), with the determinant-doubling refit rule), ``ThompsonRidgeRewardHead`` (posterior
+  sampling of the ridge weights, one draw per refit) and ``BernsteinRewardHead`` (UCB-V's empirical-Bernstein
+  bound, kernel-weighted). ``make_reward_head`` builds them by name (``CONFIDENCE_BOUND_HEAD_NAMES``); a TRLSD
+  model takes them as instances.
 
 The edge cases (W -> 0, |Xi| <= 1) are decided in ``base.py``'s docstring.
 """
@@ -21,28 +26,46 @@ import numpy as np
 from gymnasium import spaces
 
 from sb3_trlsd.reward_heads.base import DEFAULT_W_FLOOR, RewardHead, RewardTracker
+from sb3_trlsd.reward_heads.confidence_bounds import (
+    BernsteinRewardHead,
+    BernsteinTracker,
+    PosteriorSnapshot,
+    PosteriorTracker,
+    RidgePosteriorRewardHead,
+    ThompsonRidgeRewardHead,
+)
 from sb3_trlsd.reward_heads.known import KnownRewardHead, RewardFn
 from sb3_trlsd.reward_heads.ridge import SIMILARITIES, KernelSumTracker, RidgeRewardHead
 from sb3_trlsd.reward_heads.tabular import CellFn, GridCells, TabularRewardHead
 
 __all__ = [
+    "CONFIDENCE_BOUND_HEAD_NAMES",
     "DEFAULT_W_FLOOR",
     "REWARD_HEAD_NAMES",
     "SIMILARITIES",
+    "BernsteinRewardHead",
+    "BernsteinTracker",
     "CellFn",
     "GridCells",
     "KernelSumTracker",
     "KnownRewardHead",
+    "PosteriorSnapshot",
+    "PosteriorTracker",
     "RewardFn",
     "RewardHead",
     "RewardTracker",
+    "RidgePosteriorRewardHead",
     "RidgeRewardHead",
     "TabularRewardHead",
+    "ThompsonRidgeRewardHead",
     "make_reward_head",
     "make_tabular_head",
 ]
 
 REWARD_HEAD_NAMES = ("ridge", "tabular", "corners", "known")
+# Built by make_reward_head only: TRLSD's settings and builders know REWARD_HEAD_NAMES, and take these heads
+# as instances (their features and widths are not derived from the model's).
+CONFIDENCE_BOUND_HEAD_NAMES = ("ridge_posterior", "thompson", "bernstein")
 DEFAULT_CELLS_PER_DIM = 5  # the paper's 5 x 5 cells of the maze
 
 
@@ -110,8 +133,10 @@ def make_reward_head(
     """
     A reward head by name: ``"ridge"`` (continuous setting), ``"tabular"`` (per-cell means, see
     ``make_tabular_head``), ``"corners"`` (tabular, rewards only possible in the corner cells) or
-    ``"known"`` (``reward_fn``). Arguments a head does not use (``sigma`` and ``similarity`` of the tabular
-    heads, ``kappa`` of the known one) are ignored.
+    ``"known"`` (``reward_fn``); or one of ``CONFIDENCE_BOUND_HEAD_NAMES``: ``"ridge_posterior"`` and
+    ``"thompson"`` (on ``features``), ``"bernstein"`` (of width ``sigma``, on states). Arguments a head does
+    not use (``sigma`` and ``similarity`` of the tabular and linear-posterior heads, ``kappa`` of the known
+    one) are ignored.
 
     :param name: the head's name
     :param task: the task the head is for (the known head passes it to ``reward_fn``)
@@ -122,7 +147,8 @@ def make_reward_head(
     :param similarity: similarity of the ridge head, ``"state"`` or ``"features"``
     :param reward_fn: the known expected reward, ``reward_fn(states, task) -> (n,)``
     :param kwargs: further arguments of the head (``ridge``, ``w_floor``, ``r_max``; ``cell_fn``,
-        ``n_cells``, ``cells_per_dim``, ``allowed_cells`` for the tabular heads)
+        ``n_cells``, ``cells_per_dim``, ``allowed_cells`` for the tabular heads; ``seed`` for
+        ``"thompson"``, ``reward_range`` for ``"bernstein"``)
     :return: the head
     """
     if name == "ridge":
@@ -135,4 +161,18 @@ def make_reward_head(
         if kwargs:
             raise ValueError(f"the 'known' reward_head takes no reward_head_kwargs, got {sorted(kwargs)}")
         return KnownRewardHead(reward_fn, task)
-    raise ValueError(f"reward_head must be one of {list(REWARD_HEAD_NAMES)}, got {name!r}")
+    if name in ("ridge_posterior", "thompson"):
+        if features is None:
+            raise ValueError(f"the {name!r} reward_head needs features (Phi, e.g. an RBFGrid)")
+        head_class = RidgePosteriorRewardHead if name == "ridge_posterior" else ThompsonRidgeRewardHead
+        return head_class(features, kappa=kappa, **kwargs)
+    if name == "bernstein":
+        if similarity != "state":
+            raise ValueError(
+                f"the 'bernstein' reward_head weighs samples by eq. 6 (similarity='state'), "
+                f"got {similarity!r}"
+            )
+        return BernsteinRewardHead(kappa=kappa, sigma=sigma, **kwargs)
+    raise ValueError(
+        f"reward_head must be one of {list(REWARD_HEAD_NAMES + CONFIDENCE_BOUND_HEAD_NAMES)}, got {name!r}"
+    )
