@@ -2,10 +2,12 @@
 
 - ``targets.py``: the defaults, ``FQIResult`` and the Bellman targets every solver uses;
 - ``linear.py``: ``LinearFQISolver``, linear FQI that keeps its per-action factorisations across refits;
+- ``linear_runs.py``: ``fit_linear_fqi_runs``, its iterations for several runs at once (one is a fit);
 - ``mlp.py``: FQI with a small network: its output layer by linear FQI on its hidden features.
 """
 
-from sb3_trlsd.fqi.linear import LinearFQISolver, fit_linear_fqi, fit_linear_fqi_runs
+from sb3_trlsd.fqi.linear import LinearFQISolver, fit_linear_fqi
+from sb3_trlsd.fqi.linear_runs import fit_linear_fqi_runs
 from sb3_trlsd.fqi.mlp import fit_mlp_fqi, make_q_network
 from sb3_trlsd.fqi.targets import (
     DEFAULT_LINEAR_ITERATIONS,

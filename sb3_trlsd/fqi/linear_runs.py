@@ -1,0 +1,282 @@
+"""Linear Fitted-Q Iteration of several runs at once (eq. 3-4): the iterations of ``LinearFQISolver.fit``.
+
+Runs of a batch in lockstep (``sb3_trlsd.lockstep``) that share their source transitions share their rows:
+the products of eq. 4 over them are one matrix-matrix product for every run still iterating. A fit of one
+run (``LinearFQISolver.fit``, and so ``TRLSD``) is this with a batch of one.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, NamedTuple
+
+import numpy as np
+from scipy.linalg import cho_factor, cho_solve
+
+from sb3_trlsd.fqi.targets import (
+    DEFAULT_LINEAR_ITERATIONS,
+    DEFAULT_TOL,
+    FQIResult,
+    bellman_targets_by_action,
+    return_bounds,
+)
+
+if TYPE_CHECKING:
+    from sb3_trlsd.fqi.linear import LinearFQISolver
+
+__all__ = ["fit_linear_fqi_runs"]
+
+
+class _Run(NamedTuple):
+    """What one run of ``fit_linear_fqi_runs`` fits: its own rows, projections and bounds."""
+
+    theta0: np.ndarray  # (n_actions, k) float64
+    own: LinearFQISolver | None  # its own rows
+    own_rewards: np.ndarray  # its rewards of them, (n_own,) in the storage precision
+    inverse: np.ndarray  # (n_actions, k, k): (G_a + G_a,r - ridge I)^-1, identity where a has no row
+    has_rows: np.ndarray  # (n_actions,) bool
+    bounds: tuple[float, float]  # ``return_bounds`` of its rewards
+    n_rows: int
+
+
+def _check_solvers(solvers: list[LinearFQISolver]) -> LinearFQISolver:
+    """The first solver, once every solver is known to have its sizes, ridge and precision."""
+    first = solvers[0]
+    for solver in solvers[1:]:
+        settings = (solver.n_features, solver.n_actions, solver.ridge, solver.dtype)
+        if settings != (first.n_features, first.n_actions, first.ridge, first.dtype):
+            raise ValueError(f"the runs' solvers must share sizes, ridge and dtype: {first!r} and {solver!r}")
+    return first
+
+
+def _projection_of(
+    shared: LinearFQISolver | None, own: LinearFQISolver | None, action: int
+) -> np.ndarray | None:
+    """The inverse Gram matrix of one action over the shared rows and a run's own ones (None: no row)."""
+    in_shared = shared is not None and shared.n_rows_of(action) > 0
+    in_own = own is not None and own.n_rows_of(action) > 0
+    if in_shared and in_own:
+        assert shared is not None and own is not None
+        identity = np.eye(shared.n_features)
+        # Both Gram matrices hold ridge I: the sum holds it twice.
+        return cho_solve(
+            cho_factor(shared.gram(action) + own.gram(action) - shared.ridge * identity), identity
+        )
+    if in_shared or in_own:
+        solver = shared if in_shared else own
+        assert solver is not None
+        return solver.inverse(action)
+    return None
+
+
+class _OwnRows(NamedTuple):
+    """The own rows of the active runs side by side, padded to the longest (a padded row weighs 0)."""
+
+    phi_t: np.ndarray  # (runs, k, n) X^T of every own row, in order
+    next_phi_t: np.ndarray  # (runs, k, n)
+    action_mask: np.ndarray  # (runs, n_actions, n): 1 where the row is of that action, 0 elsewhere
+    rewards: np.ndarray  # (runs, n)
+    terminated: np.ndarray  # (runs, n) bool
+
+    @classmethod
+    def of(cls, runs: list[_Run], n_actions: int, k: int, dtype: np.dtype) -> _OwnRows:
+        n = max((len(run.own_rewards) for run in runs), default=0)
+        rows = cls(
+            np.zeros((len(runs), k, n), dtype),
+            np.zeros((len(runs), k, n), dtype),
+            np.zeros((len(runs), n_actions, n), dtype),
+            np.zeros((len(runs), n), dtype),
+            np.zeros((len(runs), n), dtype=bool),
+        )
+        for i, run in enumerate(runs):
+            if run.own is None or not run.own.n_transitions:
+                continue
+            n_own = run.own.n_transitions
+            rows.next_phi_t[i, :, :n_own] = run.own.next_phi_t
+            rows.rewards[i, :n_own] = run.own_rewards
+            if run.own.terminated is not None:
+                rows.terminated[i, :n_own] = run.own.terminated
+            for block in run.own.action_blocks():
+                rows.phi_t[i, :, block.rows] = block.phi_t.T
+                rows.action_mask[i, block.action, block.rows] = 1.0
+        return rows
+
+    def kept(self, keep: np.ndarray) -> _OwnRows:
+        return _OwnRows(*(array[keep] for array in self))
+
+
+class _BatchedFit:
+    """The iterations of ``fit_linear_fqi_runs`` over the runs still iterating (``active``: their indices)."""
+
+    def __init__(
+        self, shared: LinearFQISolver | None, runs: list[_Run], shared_rewards: np.ndarray, gamma: float
+    ):
+        self.shared = shared
+        self.shared_blocks = [] if shared is None else shared.action_blocks()
+        self.runs, self.gamma = runs, gamma
+        self.dtype = shared_rewards.dtype
+        self.n_actions, self.k = runs[0].theta0.shape
+        self.active = np.array([r for r, run in enumerate(runs) if run.n_rows], dtype=np.int64)
+        # Per active run, kept as the set shrinks: shared rows' rewards, bounds, projections, own rows.
+        self.shared_rewards = shared_rewards[self.active]
+        bounds = np.array([runs[r].bounds for r in self.active], dtype=self.dtype).reshape(-1, 2)
+        self.low, self.high = bounds[:, :1], bounds[:, 1:]
+        self.inverses = np.stack([runs[r].inverse for r in self.active]) if len(self.active) else None
+        self.has_rows = np.array([runs[r].has_rows for r in self.active]).reshape(-1, self.n_actions, 1)
+        self.own = _OwnRows.of([runs[r] for r in self.active], self.n_actions, self.k, self.dtype)
+
+    def drop(self, done: np.ndarray) -> None:
+        """Stop iterating the active runs where ``done``."""
+        keep = ~done
+        self.active, self.shared_rewards = self.active[keep], self.shared_rewards[keep]
+        self.low, self.high, self.has_rows = self.low[keep], self.high[keep], self.has_rows[keep]
+        self.inverses = None if self.inverses is None else self.inverses[keep]
+        self.own = self.own.kept(keep)
+
+    def targets(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """
+        y = r + gamma max_a' theta_a' . Phi(s') (eq. 4) of every active run: (active, n_shared) from one
+        product over the shared rows, and (active, n_own) from one batched product over the own rows.
+        """
+        stored = theta.astype(self.dtype, copy=False)
+        m = len(self.active)
+        if self.shared is None:
+            shared_y = self.shared_rewards
+        else:
+            next_q = (stored.reshape(m * self.n_actions, self.k) @ self.shared.next_phi_t).reshape(
+                m, self.n_actions, -1
+            )
+            shared_y = bellman_targets_by_action(
+                self.shared_rewards, next_q, self.shared.terminated, self.gamma, self.low, self.high
+            )
+        own = self.own
+        if not own.rewards.shape[1]:
+            return shared_y, own.rewards
+        own_y = bellman_targets_by_action(
+            own.rewards, np.matmul(stored, own.next_phi_t), own.terminated, self.gamma, self.low, self.high
+        )
+        return shared_y, own_y
+
+    def projected(self, theta: np.ndarray, shared_y: np.ndarray, own_y: np.ndarray) -> np.ndarray:
+        """theta_a <- (X_a^T X_a + ridge I)^-1 X_a^T y_a (eq. 4, block a) for every active run."""
+        moments = np.zeros((len(self.active), self.n_actions, self.k))
+        for block in self.shared_blocks:
+            moments[:, block.action] += shared_y[:, block.rows] @ block.phi_t.T
+        if own_y.shape[1]:
+            # X_a^T y_a over the own rows of action a, every action and run in one batched product.
+            moments += np.matmul(self.own.action_mask * own_y[:, None, :], self.own.phi_t.transpose(0, 2, 1))
+        new = np.einsum("rakj,raj->rak", self.inverses, moments)
+        return np.where(self.has_rows, new, theta)
+
+    def residual(self, i: int, theta: np.ndarray, shared_y: np.ndarray, own_y: np.ndarray) -> float:
+        """The RMS Bellman residual sqrt(mean (y - X theta)^2) of active run ``i``."""
+        stored = theta.astype(self.dtype, copy=False)
+        squared_error = sum(
+            float(
+                np.sum((shared_y[i, block.rows] - stored[block.action] @ block.phi_t) ** 2, dtype=np.float64)
+            )
+            for block in self.shared_blocks
+        )
+        if own_y.shape[1]:
+            own_error = self.own.action_mask[i] * (own_y[i] - stored @ self.own.phi_t[i])  # (n_actions, n)
+            squared_error += float(np.sum(own_error**2, dtype=np.float64))
+        return float(np.sqrt(squared_error / self.runs[self.active[i]].n_rows))
+
+
+def fit_linear_fqi_runs(
+    shared: LinearFQISolver | None,
+    own: Sequence[LinearFQISolver | None],
+    rewards: Sequence[np.ndarray],
+    *,
+    gamma: float,
+    theta0: Sequence[np.ndarray | None],
+    max_iterations: int = DEFAULT_LINEAR_ITERATIONS,
+    tol: float = DEFAULT_TOL,
+) -> list[FQIResult]:
+    """
+    Linear Fitted-Q Iteration of several runs at once (eq. 3-4): run r fits on the ``shared`` rows followed by
+    its ``own[r]`` rows, with its rewards ``rewards[r]`` of those rows in that order, from ``theta0[r]``.
+
+    Runs of a batch that share their source transitions share their rows: the products of eq. 4 over the
+    shared rows are then one matrix-matrix product for every run still iterating (Phi(s')^T of the rows
+    times the parameters of all of them), read from memory once. Run r's projection of action a is
+    (G_a + G_a,r - ridge I)^-1 (X_a^T y_a + X_a,r^T y_a,r), the Gram matrices of the shared and own rows
+    (each holding ridge I) added. Each run stops by its own rule, so it gets what a fit of it alone gives,
+    up to the order of floating-point sums. ``LinearFQISolver.fit`` is this function with one run.
+
+    :param shared: the rows every run has (None: none)
+    :param own: each run's own rows (None: none); the solvers' sizes, ridge and precision must agree
+    :param rewards: each run's r, (n_shared + n_own_r,)
+    :param gamma: discount factor in [0, 1)
+    :param theta0: each run's warm start, (n_actions, k) or None for zeros. Actions without rows keep it
+    :param max_iterations: cap on the iterations of each run (>= 1)
+    :param tol: each run stops when max |theta_new - theta| <= tol * (1 + max |theta_new|) (see ``fit``)
+    :return: one result per run
+    """
+    solvers = [solver for solver in (shared, *own) if solver is not None]
+    if not solvers:
+        raise ValueError("fit_linear_fqi_runs needs rows: a shared solver or an own solver per run")
+    if not len(own) == len(rewards) == len(theta0):
+        raise ValueError(
+            f"own, rewards and theta0 need one entry per run, got {len(own)}, {len(rewards)}, {len(theta0)}"
+        )
+    if not 0 <= gamma < 1:
+        raise ValueError(f"gamma must be in [0, 1), got {gamma}")
+    if not max_iterations >= 1 or not tol >= 0:
+        raise ValueError(f"max_iterations must be >= 1 and tol >= 0, got {max_iterations} and {tol}")
+    first = _check_solvers(solvers)
+    n_actions, k, dtype = first.n_actions, first.n_features, first.dtype
+    tol = max(tol, 64 * float(np.finfo(dtype).eps))
+    n_shared = 0 if shared is None else shared.n_transitions
+    runs, shared_rewards = [], np.zeros((len(own), n_shared), dtype=dtype)
+    for r, (own_rows, run_rewards, start) in enumerate(zip(own, rewards, theta0, strict=True)):
+        n_rows = n_shared + (0 if own_rows is None else own_rows.n_transitions)
+        run_rewards = np.asarray(run_rewards, dtype=np.float64)
+        if run_rewards.shape != (n_rows,) or not np.all(np.isfinite(run_rewards)):
+            raise ValueError(
+                f"rewards must be finite, one per row of the run: shape ({n_rows},), got {run_rewards.shape}"
+            )
+        theta = np.zeros((n_actions, k)) if start is None else np.array(start, dtype=np.float64, copy=True)
+        if theta.shape != (n_actions, k):
+            raise ValueError(f"theta0 must have shape {(n_actions, k)}, got {theta.shape}")
+        shared_rewards[r] = run_rewards[:n_shared]
+        projections = [_projection_of(shared, own_rows, a) for a in range(n_actions)]
+        runs.append(
+            _Run(
+                theta0=theta,
+                own=own_rows,
+                own_rewards=run_rewards[n_shared:].astype(dtype),
+                inverse=np.stack([np.eye(k) if p is None else p for p in projections]),
+                has_rows=np.array([p is not None for p in projections]),
+                bounds=return_bounds(run_rewards, gamma),
+                n_rows=n_rows,
+            )
+        )
+
+    fit = _BatchedFit(shared, runs, shared_rewards, gamma)
+    results = [
+        FQIResult(theta=run.theta0, iterations=0, bellman_residual=0.0) if not run.n_rows else None
+        for run in runs
+    ]
+    theta = np.stack([runs[r].theta0 for r in fit.active]) if len(fit.active) else None
+    if theta is not None:
+        shared_y, own_y = fit.targets(theta)
+        for iteration in range(1, max_iterations + 1):
+            new_theta = fit.projected(theta, shared_y, own_y)
+            change = np.abs(new_theta - theta).max(axis=(1, 2))
+            theta = new_theta
+            shared_y, own_y = fit.targets(theta)
+            done = (change <= tol * (1.0 + np.abs(theta).max(axis=(1, 2)))) | (iteration == max_iterations)
+            for i in np.flatnonzero(done):
+                residual = fit.residual(int(i), theta[i], shared_y, own_y)
+                results[fit.active[i]] = FQIResult(
+                    theta=theta[i], iterations=iteration, bellman_residual=residual
+                )
+            if done.all():
+                break
+            if done.any():
+                theta = theta[~done]
+                shared_y, own_y = shared_y[~done], own_y[~done]
+                fit.drop(done)
+    assert all(result is not None for result in results)
+    return results  # type: ignore[return-value]
