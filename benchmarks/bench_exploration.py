@@ -23,8 +23,9 @@ import argparse
 
 import numpy as np
 
+from sb3_trlsd.experiments.batches import transfer_runs
 from sb3_trlsd.experiments.reporting import mean_and_standard_error
-from sb3_trlsd.experiments.runner import Method, transfer_runs
+from sb3_trlsd.experiments.runner import Method
 from sb3_trlsd_envs import N_TASKS
 
 SETTINGS = {  # name -> keyword arguments of the target task's env

@@ -37,7 +37,8 @@ import numpy as np
 import torch as th
 
 from sb3_trlsd import TRLSD
-from sb3_trlsd.experiments.runner import Method, RunRecord, run_jobs, transfer_run
+from sb3_trlsd.experiments.jobs import run_jobs
+from sb3_trlsd.experiments.runner import Method, RunRecord, transfer_run
 from sb3_trlsd.fit_rows import FitRows, TransitionRows
 from sb3_trlsd.fqi import FQIResult, return_bounds
 from sb3_trlsd.policies import MlpPolicy

@@ -13,7 +13,7 @@ from matplotlib.image import imread
 
 from sb3_trlsd import collect_transitions
 from sb3_trlsd.cli import main
-from sb3_trlsd.experiments import FIGURES, multitask, runner
+from sb3_trlsd.experiments import FIGURES, batches, multitask, runner
 from sb3_trlsd.experiments.reporting import (
     mean_and_standard_error,
     moving_average,
@@ -80,7 +80,8 @@ def test_reporting_statistics_match_numpy():
 @pytest.fixture
 def tiny_sizes(monkeypatch):
     """Few source transitions and one short multi-task turn: the figures' code paths in seconds."""
-    monkeypatch.setattr(runner, "SOURCE_TRANSITIONS", 400)
+    monkeypatch.setattr(runner, "SOURCE_TRANSITIONS", 400)  # runs alone (the pictures of Figures 1-4)
+    monkeypatch.setattr(batches, "SOURCE_TRANSITIONS", 400)  # the figures' batches
     monkeypatch.setattr(multitask, "TURNS", 1)
     monkeypatch.setattr(multitask, "EPISODE_STEPS", 8)
 
@@ -120,7 +121,7 @@ def test_reproduce_resumes_from_the_runs_of_a_previous_command(tiny_sizes, tmp_p
     def no_run(*args, **kwargs):
         raise AssertionError("a finished run ran again")
 
-    monkeypatch.setattr(runner.Lockstep, "run", no_run)
+    monkeypatch.setattr(batches.Lockstep, "run", no_run)
     assert main([*command, str(tmp_path)]) == 0
     assert {path.name: path.stat().st_mtime_ns for path in (tmp_path / "runs").iterdir()} == files
     assert json.loads((tmp_path / "fig8.json").read_text())["results"] == first["results"]

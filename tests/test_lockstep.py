@@ -15,9 +15,10 @@ import numpy as np
 import pytest
 
 from sb3_trlsd import TRLSD, collect_transitions
+from sb3_trlsd.experiments.batches import batch_runs, multitask_batch, source_seed
 from sb3_trlsd.experiments.env_batches import GymEnvBatch, MazeBatch, env_batch
 from sb3_trlsd.experiments.reporting import mean_and_standard_error, window_means
-from sb3_trlsd.experiments.runner import Method, batch_runs, multitask_batch, multitask_run, source_seed
+from sb3_trlsd.experiments.runner import Method, multitask_run
 from sb3_trlsd.fqi import LinearFQISolver, fit_linear_fqi_runs
 from sb3_trlsd.lockstep import Lockstep
 from sb3_trlsd_envs import FOUR_ROOMS_ID, MAZE_ID

@@ -14,8 +14,9 @@ import numpy as np
 import pytest
 
 from sb3_trlsd.experiments import run_cache
+from sb3_trlsd.experiments.jobs import run_jobs
 from sb3_trlsd.experiments.run_cache import RunCache, run_key
-from sb3_trlsd.experiments.runner import Method, RunRecord, Snapshot, multitask_run, run_jobs, transfer_run
+from sb3_trlsd.experiments.runner import Method, RunRecord, Snapshot, multitask_run, transfer_run
 
 CALL_LOG_VARIABLE = "SB3_TRLSD_TEST_CALL_LOG"  # file where counted_transfer_run writes the seed of each call
 

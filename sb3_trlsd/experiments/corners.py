@@ -10,8 +10,9 @@ import time
 from pathlib import Path
 
 from sb3_trlsd.experiments.backends import LOKY, Backend
+from sb3_trlsd.experiments.batches import transfer_runs
 from sb3_trlsd.experiments.figures import write_transfer_figure
-from sb3_trlsd.experiments.runner import Method, transfer_runs
+from sb3_trlsd.experiments.runner import Method
 from sb3_trlsd_envs import CORNER_TASKS
 
 DEFAULT_RUNS = 200  # the paper gives no count for Figure 6: 50 runs of each corner

@@ -9,8 +9,9 @@ import time
 from pathlib import Path
 
 from sb3_trlsd.experiments.backends import LOKY, Backend
+from sb3_trlsd.experiments.batches import transfer_runs
 from sb3_trlsd.experiments.figures import write_transfer_figure
-from sb3_trlsd.experiments.runner import Method, transfer_run, transfer_runs
+from sb3_trlsd.experiments.runner import Method, transfer_run
 from sb3_trlsd_envs import N_TASKS
 
 DEFAULT_RUNS = 100  # the paper gives no count for Figure 1: 4 runs of each of the 25 tasks

@@ -14,7 +14,9 @@ from pathlib import Path
 import numpy as np
 
 from sb3_trlsd.experiments.backends import LOKY, Backend
+from sb3_trlsd.experiments.batches import batch_runs, multitask_batch
 from sb3_trlsd.experiments.figures import new_figure, save_figure, update_counts
+from sb3_trlsd.experiments.jobs import run_jobs
 from sb3_trlsd.experiments.reporting import (
     mean_and_standard_error,
     plot_curves,
@@ -22,7 +24,7 @@ from sb3_trlsd.experiments.reporting import (
     write_curves_csv,
     write_json,
 )
-from sb3_trlsd.experiments.runner import Method, batch_runs, multitask_batch, run_jobs
+from sb3_trlsd.experiments.runner import Method
 from sb3_trlsd_envs import N_TASKS
 
 DEFAULT_RUNS = 200  # paper: 200 runs

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from sb3_trlsd.experiments.backends import LOKY, Backend
+from sb3_trlsd.experiments.batches import transfer_runs
 from sb3_trlsd.experiments.figures import new_figure, save_figure, update_counts
 from sb3_trlsd.experiments.reporting import (
     source_sets_of,
@@ -20,7 +21,7 @@ from sb3_trlsd.experiments.reporting import (
     write_curves_csv,
     write_json,
 )
-from sb3_trlsd.experiments.runner import Method, transfer_runs
+from sb3_trlsd.experiments.runner import Method
 from sb3_trlsd_envs import N_TASKS
 
 DEFAULT_RUNS = 100  # runs per parameter value (the paper does not say; Figure 5 uses 500)
