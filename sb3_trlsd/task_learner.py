@@ -65,7 +65,8 @@ class TaskLearner:
         section 3 refits once the CI at an encountered state has been divided by ``update_ratio`` since the
         last refit. The ratio is taken on the kappa-free uncertainty, so that kappa = 0 triggers the same way.
         A head without uncertainty (the known reward) has nothing to divide: it refits when the shared buffer
-        has grown by ``update_ratio`` since the last refit, so that new dynamics data reaches its policy.
+        has grown by ``update_ratio`` since the last refit, so that new dynamics data reaches its policy. A
+        head may have a rule of its own (``RewardHead.refit_due``: the OFUL head's is determinant doubling).
 
         :param state: the transition's start state (d,)
         :param reward: the reward observed there
@@ -78,10 +79,7 @@ class TaskLearner:
         if not self.head.has_uncertainty:
             self.due = n_rows >= self.update_ratio * max(self.rows_at_refit, 1)
             return
-        then, now = (
-            value[0] for value in self.head.uncertainty_then_and_now(self.uncertainty_at_refit, state)
-        )
-        self.due = bool(then > 0 and then >= self.update_ratio * now)
+        self.due = self.head.refit_due(self.uncertainty_at_refit, state, self.update_ratio)
 
     def relabelled_rewards(self, buffer: SharedDynamicsReplayBuffer) -> np.ndarray:
         """

@@ -242,6 +242,20 @@ class RewardHead(ABC):
         """
         return self.uncertainty_as_of(snapshot, states), self.uncertainty(states)
 
+    def refit_due(self, snapshot: Any, state: np.ndarray, update_ratio: float) -> bool:
+        """
+        The refit trigger of section 3: the kappa-free uncertainty at the encountered state has been divided
+        by ``update_ratio`` since ``snapshot`` (the last refit). A head whose confidence set shrinks otherwise
+        can bring its own rule (``RidgePosteriorRewardHead``: determinant doubling).
+
+        :param snapshot: ``snapshot()`` at the last refit
+        :param state: the state just encountered, (1, d)
+        :param update_ratio: the factor (> 1)
+        :return: whether the task is due for a refit
+        """
+        then, now = (value[0] for value in self.uncertainty_then_and_now(snapshot, state))
+        return bool(then > 0 and then >= update_ratio * now)
+
     @abstractmethod
     def _update(self, states: np.ndarray, rewards: np.ndarray) -> None:
         """Fold in validated samples: states (n, d), rewards (n,), n >= 1."""
