@@ -168,7 +168,7 @@ def write_json(path: Path, data: Mapping[str, Any]) -> None:
 
 
 def _cell(value: Any) -> str:
-    if isinstance(value, Mapping) and set(value) == {"mean", "se"}:
+    if isinstance(value, Mapping) and {"mean", "se"} <= set(value):
         return f"{value['mean']:.3f} ± {value['se']:.3f}"
     if isinstance(value, float):
         return f"{value:.3g}"
@@ -176,11 +176,14 @@ def _cell(value: Any) -> str:
 
 
 def _flatten(entry: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
-    """{"reward": {"[0, 100)": {"mean", "se"}}} -> {"reward [0, 100)": {"mean", "se"}}."""
+    """
+    {"reward": {"[0, 100)": {"mean", "se"}}} -> {"reward [0, 100)": {"mean", "se"}}; a cell keeps its
+    ``se_runs`` (the standard error as if runs of one source set were independent) out of the table.
+    """
     flat = {}
     for key, value in entry.items():
         name = f"{prefix} {key}".strip()
-        if isinstance(value, Mapping) and set(value) != {"mean", "se"}:
+        if isinstance(value, Mapping) and not {"mean", "se"} <= set(value) <= {"mean", "se", "se_runs"}:
             flat.update(_flatten(value, name))
         else:
             flat[name] = value
