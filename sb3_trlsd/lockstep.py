@@ -108,7 +108,8 @@ class Lockstep:
     :param model: a ``TRLSD`` model with the ``LinearPolicy`` whose settings (reward head, kappa, sigma,
         update ratio, gamma, features, Fitted-Q settings) every run takes; its own buffer and learners are not
         used. Runs share its feature map
-    :param envs: the runs' envs
+    :param envs: the runs' envs, one per run
+    :param n_runs: the runs
     :param source: the transitions every run starts from, or None
     :param n_steps: online transitions per run (the buffers are sized for them)
     """
