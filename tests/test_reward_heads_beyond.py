@@ -17,7 +17,7 @@ from sb3_trlsd.reward_heads import (
     ThompsonRidgeRewardHead,
     make_reward_head,
 )
-from sb3_trlsd.reward_heads.confidence_bounds import sample_posterior_weights
+from sb3_trlsd.reward_heads.posterior import sample_posterior_weights
 from tests.conftest import MAZE_ID
 
 LINE = RBFGrid(low=(0,), high=(1,), n_per_dim=4, sigma=0.3)  # k = 4 features on [0, 1]
