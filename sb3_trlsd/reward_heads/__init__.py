@@ -8,10 +8,11 @@ Reward heads: the optimistic reward proxy R~_tau = R^_tau + CI_tau of one task (
   any cell function or a ``GridCells`` grid over the state Box; an optional set of allowed cells encodes
   the prior that rewards are zero elsewhere (``"corners"``: the grid's corner cells).
 - ``KnownRewardHead`` (``known.py``): the reward is known, CI = 0.
-- Other confidence bounds (``posterior.py``, ``bernstein.py``): ``RidgePosteriorRewardHead`` (OFUL / LinUCB's
-  sqrt(phi^T A^-1 phi), with the determinant-doubling refit rule), ``ThompsonRidgeRewardHead`` (posterior
-  sampling of the ridge weights, one draw per refit) and ``BernsteinRewardHead`` (UCB-V's empirical-Bernstein
-  bound, kernel-weighted). ``make_reward_head`` builds them by name (``CONFIDENCE_BOUND_HEAD_NAMES``); a TRLSD
+- Other confidence bounds (``posterior.py``, ``thompson.py``, ``bernstein.py``): ``RidgePosteriorRewardHead``
+  (OFUL / LinUCB's sqrt(phi^T A^-1 phi), with the determinant-doubling refit rule),
+  ``ThompsonRidgeRewardHead`` (posterior sampling of the ridge weights, one draw per refit) and
+  ``BernsteinRewardHead`` (UCB-V's empirical-Bernstein bound, kernel-weighted). ``make_reward_head`` builds
+  them by name (``CONFIDENCE_BOUND_HEAD_NAMES``); a TRLSD
   model takes them as instances.
 
 The edge cases (W -> 0, |Xi| <= 1) are decided in ``base.py``'s docstring.
@@ -28,14 +29,10 @@ from gymnasium import spaces
 from sb3_trlsd.reward_heads.base import DEFAULT_W_FLOOR, RewardHead, RewardTracker
 from sb3_trlsd.reward_heads.bernstein import BernsteinRewardHead, BernsteinTracker
 from sb3_trlsd.reward_heads.known import KnownRewardHead, RewardFn
-from sb3_trlsd.reward_heads.posterior import (
-    PosteriorSnapshot,
-    PosteriorTracker,
-    RidgePosteriorRewardHead,
-    ThompsonRidgeRewardHead,
-)
+from sb3_trlsd.reward_heads.posterior import PosteriorSnapshot, PosteriorTracker, RidgePosteriorRewardHead
 from sb3_trlsd.reward_heads.ridge import SIMILARITIES, KernelSumTracker, RidgeRewardHead
 from sb3_trlsd.reward_heads.tabular import CellFn, GridCells, TabularRewardHead
+from sb3_trlsd.reward_heads.thompson import ThompsonRidgeRewardHead
 
 __all__ = [
     "CONFIDENCE_BOUND_HEAD_NAMES",
