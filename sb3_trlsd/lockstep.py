@@ -78,7 +78,11 @@ class _Run:
         self.learners: dict[int, TaskLearner] = {}
         self.theta = np.zeros((n_tasks, model.policy.n_actions, model.features.n_features))
         self.pending: list[tuple] = []  # online rows not yet written to the buffer
-        self.n_rows = self.buffer.size()
+
+    @property
+    def n_rows(self) -> int:
+        """The run's rows, written or held back (what ``TRLSD``'s buffer would hold)."""
+        return self.buffer.size() + len(self.pending)
 
     def write_pending(self) -> None:
         """Write the online rows held back since the last refit: rows are read only at refits."""
@@ -229,7 +233,6 @@ class Lockstep:
                 run.pending.append(
                     (states[r], actions[r], rewards[r], next_states[r], tasks[r], truncated[r], terminated[r])
                 )
-                run.n_rows += 1
                 self.learner(r, int(tasks[r])).observe(states[r], rewards[r], n_rows=run.n_rows)
                 due += [(r, task) for task, learner in sorted(run.learners.items()) if learner.due]
             self._refit_and_record(due, records, step + 1)
