@@ -13,6 +13,7 @@ import numpy as np
 from sb3_trlsd.experiments.reporting import (
     mean_and_standard_error,
     plot_curves,
+    plot_probability_of_improvement,
     source_sets_of,
     summary,
     window_means,
@@ -20,10 +21,18 @@ from sb3_trlsd.experiments.reporting import (
     write_json,
 )
 from sb3_trlsd.experiments.runner import Method, RunRecord, Snapshot
+from sb3_trlsd.experiments.statistics import improvement_intervals
 from sb3_trlsd_envs import task_cell
 from sb3_trlsd_envs.dynamics import DEFAULT_WALLS
 
-__all__ = ["draw_snapshot", "new_figure", "save_figure", "update_counts", "write_transfer_figure"]
+__all__ = [
+    "draw_snapshot",
+    "new_figure",
+    "save_figure",
+    "update_counts",
+    "write_improvement_figure",
+    "write_transfer_figure",
+]
 
 CURVE_SMOOTHING = 20  # transitions of the moving average drawn (the CSV keeps every transition)
 
@@ -64,6 +73,36 @@ def update_counts(records: Sequence[RunRecord]) -> dict[str, float]:
     """Mean and standard error of the policy updates per run."""
     mean, se = mean_and_standard_error(np.array([[record.policy_updates] for record in records]))
     return {"mean": float(mean[0]), "se": float(se[0])}
+
+
+def write_improvement_figure(
+    path: Path,
+    scores: Mapping[str, np.ndarray],
+    pairs: Sequence[tuple[str, str]],
+    title: str,
+    *,
+    reps: int = 2_000,
+    confidence: float = 0.95,
+    seed: int = 0,
+) -> dict[tuple[str, str], tuple[float, float, float]]:
+    """
+    Write a PNG of P(X > Y) for head-to-head comparisons, with stratified bootstrap intervals, as rliable
+    draws them (``statistics.improvement_intervals``, ``reporting.plot_probability_of_improvement``).
+
+    :param path: the PNG file
+    :param scores: method -> (runs, tasks) or (runs,) scores, e.g. each run's average reward over a window
+    :param pairs: (X, Y) method names
+    :param title: the figure's title
+    :param reps: bootstrap resamples
+    :param confidence: of the intervals, in (0, 1)
+    :param seed: seed of the resamples
+    :return: (X, Y) -> (point, low, high)
+    """
+    intervals = improvement_intervals(scores, pairs, reps=reps, confidence=confidence, seed=seed)
+    figure, (ax,) = new_figure(1, width=6.0, height=1.6 + 0.45 * len(pairs))
+    plot_probability_of_improvement(ax, intervals)
+    save_figure(figure, path, title)
+    return intervals
 
 
 def write_transfer_figure(

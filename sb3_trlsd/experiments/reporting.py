@@ -11,15 +11,19 @@ from typing import Any
 
 import numpy as np
 
+from sb3_trlsd.experiments.statistics import aggregate_intervals, interval_cell
 from sb3_trlsd.version import __version__
 
 __all__ = [
+    "intervals_table",
     "mean_and_standard_error",
     "moving_average",
     "plot_curves",
+    "plot_probability_of_improvement",
     "results_table",
     "source_sets_of",
     "summary",
+    "window_intervals",
     "window_means",
     "write_curves_csv",
     "write_json",
@@ -73,12 +77,93 @@ def window_means(
     """
     out = {}
     for start, stop in windows:
-        window = np.asarray(values)[:, start:stop].mean(axis=1)
+        window = _window_average(values, start, stop)
         mean, se = mean_and_standard_error(window, clusters)
         out[f"[{start}, {stop})"] = {"mean": float(mean), "se": float(se)}
         if clusters is not None:
             out[f"[{start}, {stop})"]["se_runs"] = float(mean_and_standard_error(window)[1])
     return out
+
+
+def _window_average(values: np.ndarray, start: int, stop: int) -> np.ndarray:
+    """(runs,) each run's reward averaged over the steps ``[start, stop)`` of (runs, steps) values."""
+    return np.asarray(values)[:, start:stop].mean(axis=1)
+
+
+def window_intervals(
+    values: np.ndarray,
+    windows: Sequence[tuple[int, int]],
+    clusters: np.ndarray | None = None,
+    *,
+    reps: int = 2_000,
+    confidence: float = 0.95,
+    seed: int = 0,
+) -> dict[str, dict[str, str]]:
+    """
+    Table cells of each window: the mean ± standard error of ``window_means`` next to the mean and the IQM
+    of the runs' averages over the window, with their stratified bootstrap intervals as rliable computes
+    them (``statistics.aggregate_intervals``; the bootstrap resamples runs, not source sets).
+
+    :param values: (runs, steps)
+    :param windows: ``(start, stop)`` pairs
+    :param clusters: (runs,) the source set of each run, or None (for the standard error only)
+    :param reps: bootstrap resamples
+    :param confidence: of the intervals, in (0, 1)
+    :param seed: seed of the resamples
+    :return: ``{"[start, stop)": {"mean ± se": ..., "mean [95% CI]": ..., "IQM [95% CI]": ...}}``
+    """
+    means = window_means(values, windows, clusters)
+    level = f"{100 * confidence:g}% CI"
+    out = {}
+    for start, stop in windows:
+        key = f"[{start}, {stop})"
+        intervals = aggregate_intervals(
+            _window_average(values, start, stop), ("mean", "IQM"), reps=reps, confidence=confidence, seed=seed
+        )
+        out[key] = {"mean ± se": _cell(means[key])}
+        for name, interval in intervals.items():
+            out[key][f"{name} [{level}]"] = interval_cell(
+                interval["point"], interval["low"], interval["high"]
+            )
+    return out
+
+
+def intervals_table(
+    curves: Mapping[str, np.ndarray],
+    windows: Sequence[tuple[int, int]],
+    clusters: Mapping[str, np.ndarray | None] | None = None,
+    *,
+    reps: int = 2_000,
+    confidence: float = 0.95,
+    seed: int = 0,
+) -> str:
+    """
+    A Markdown table with one row per method and window: mean ± se, then the mean and the IQM with their
+    stratified bootstrap intervals (``window_intervals``).
+
+    :param curves: method -> (runs, steps) values
+    :param windows: ``(start, stop)`` pairs
+    :param clusters: method -> (runs,) the source set of each run, or None; None: independent runs
+    :param reps: bootstrap resamples
+    :param confidence: of the intervals, in (0, 1)
+    :param seed: seed of the resamples
+    :return: the table
+    """
+    clusters = clusters or {}
+    rows = {
+        method: window_intervals(
+            values, windows, clusters.get(method), reps=reps, confidence=confidence, seed=seed
+        )
+        for method, values in curves.items()
+    }
+    columns = list(
+        dict.fromkeys(column for cells in rows.values() for row in cells.values() for column in row)
+    )
+    lines = ["| method | window | " + " | ".join(columns) + " |", "|---" * (len(columns) + 2) + "|"]
+    for method, cells in rows.items():
+        for window, row in cells.items():
+            lines.append(f"| {method} | {window} | " + " | ".join(row[column] for column in columns) + " |")
+    return "\n".join(lines)
 
 
 def moving_average(values: np.ndarray, window: int) -> np.ndarray:
@@ -145,6 +230,48 @@ def plot_curves(
     ax.set_ylabel(ylabel + (f" (moving average over {smooth})" if smooth > 1 else ""))
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
+
+
+def plot_probability_of_improvement(
+    ax: Any,
+    intervals: Mapping[tuple[str, str], tuple[float, float, float]],
+    *,
+    xlabel: str = "P(X > Y)",
+    colors: Sequence[str] | None = None,
+) -> None:
+    """
+    P(X > Y) of each pair as a horizontal interval with a tick at its point, X named on the left and Y on
+    the right, the first pair at the bottom, as rliable's ``plot_utils.plot_probability_of_improvement``
+    draws it (in matplotlib's color cycle rather than seaborn's colorblind palette).
+
+    :param ax: matplotlib Axes
+    :param intervals: (X, Y) -> (point, low, high), e.g. from ``statistics.improvement_intervals``
+    :param xlabel: x axis label
+    :param colors: one matplotlib color per pair (default: cycle)
+    """
+    height = 0.6  # rliable's interval_height
+    for index, (point, low, high) in enumerate(intervals.values()):
+        color = f"C{index}" if colors is None else colors[index]
+        ax.barh(y=index, width=high - low, height=height, left=low, color=color, alpha=0.75)
+        ax.vlines(
+            x=point, ymin=index - 7.5 * height / 16, ymax=index + 6 * height / 16, color="k", alpha=0.85
+        )
+    # A twin axis names Y on the right; only the bottom spine is kept, labels above the ticks (rliable's).
+    right = ax.twinx()
+    sides = (
+        (ax, [x for x, _ in intervals], "X", (-0.2, 1.0)),
+        (right, [y for _, y in intervals], "Y", (1.14, 1.12)),
+    )
+    for axis, names, label, coordinates in sides:
+        axis.set_ylim(-0.5, len(intervals) - 0.5)
+        axis.set_yticks(range(len(intervals)), names)
+        axis.set_ylabel(f"Algorithm {label}", fontweight="bold", rotation="horizontal")
+        axis.yaxis.set_label_coords(*coordinates)
+        axis.tick_params(length=0.1, width=0.1)
+        for spine in ("left", "right", "top"):
+            axis.spines[spine].set_visible(False)
+    ax.set_xlabel(xlabel)
+    ax.grid(True, axis="x", alpha=0.2)
 
 
 def summary(figure: str, parameters: Mapping[str, Any], seed: int, seconds: float, **results: Any) -> dict:
