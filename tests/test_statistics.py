@@ -217,30 +217,45 @@ def test_improvement_figure_writes_a_png(tmp_path):
 @pytest.mark.parametrize(
     "call, message",
     [
-        (lambda: interquartile_mean(np.empty((0, 3))), "at least one run"),
-        (lambda: aggregate_mean(np.array([1.0, np.nan])), "finite"),
-        (lambda: interquartile_mean(np.float64(1.0)), "scalar"),
-        (lambda: probability_of_improvement(np.ones((3, 2)), np.ones((3, 3))), "same tasks"),
-        (lambda: probability_of_improvement_ci(np.ones((3, 2)), np.ones((4, 1))), "same tasks"),
-        (lambda: stratified_bootstrap_ci(np.ones((2, 3, 4)), aggregate_mean), "one"),
-        (lambda: stratified_bootstrap_ci(np.ones(5), aggregate_mean, confidence=1.0), "confidence"),
-        (lambda: stratified_bootstrap_ci(np.ones(5), aggregate_mean, reps=0), "reps"),
-        (lambda: stratified_bootstrap_ci(np.ones(5), lambda batch: 0.0, reps=10), "statistic must map"),
-        (lambda: aggregate_intervals(np.ones(5), ("IQR",)), "aggregates must be among"),
-        (lambda: statistics.improvement_intervals({"a": np.ones(3)}, [("a", "b")]), "does not have"),
-    ],
-    ids=[
-        "no runs",
-        "NaN",
-        "scalar",
-        "tasks differ",
-        "tasks differ (interval)",
-        "a batch",
-        "confidence 1",
-        "no resamples",
-        "scalar statistic",
-        "unknown aggregate",
-        "unknown method",
+        pytest.param(lambda: interquartile_mean(np.empty((0, 3))), "at least one run", id="no runs"),
+        pytest.param(lambda: aggregate_mean(np.array([1.0, np.nan])), "finite", id="NaN"),
+        pytest.param(lambda: interquartile_mean(np.float64(1.0)), "scalar", id="scalar"),
+        pytest.param(
+            lambda: probability_of_improvement(np.ones((3, 2)), np.ones((3, 3))),
+            "same tasks",
+            id="tasks differ",
+        ),
+        pytest.param(
+            lambda: probability_of_improvement_ci(np.ones((3, 2)), np.ones((4, 1))),
+            "same tasks",
+            id="tasks differ (interval)",
+        ),
+        pytest.param(
+            lambda: stratified_bootstrap_ci(np.ones((2, 3, 4)), aggregate_mean), "one", id="a batch"
+        ),
+        pytest.param(
+            lambda: stratified_bootstrap_ci(np.ones(5), aggregate_mean, confidence=1.0),
+            "confidence",
+            id="confidence 1",
+        ),
+        pytest.param(
+            lambda: stratified_bootstrap_ci(np.ones(5), aggregate_mean, reps=0), "reps", id="no resamples"
+        ),
+        pytest.param(
+            lambda: stratified_bootstrap_ci(np.ones(5), lambda batch: 0.0, reps=10),
+            "statistic must map",
+            id="scalar statistic",
+        ),
+        pytest.param(
+            lambda: aggregate_intervals(np.ones(5), ("IQR",)),
+            "aggregates must be among",
+            id="unknown aggregate",
+        ),
+        pytest.param(
+            lambda: statistics.improvement_intervals({"a": np.ones(3)}, [("a", "b")]),
+            "does not have",
+            id="unknown method",
+        ),
     ],
 )
 def test_bad_input_raises_a_clear_value_error(call, message):
