@@ -15,7 +15,8 @@ Reward heads: the optimistic reward proxy R~_tau = R^_tau + CI_tau of one task (
   them by name (``CONFIDENCE_BOUND_HEAD_NAMES``); a TRLSD
   model takes them as instances.
 
-The edge cases (W -> 0, |Xi| <= 1) are decided in ``base.py``'s docstring.
+The edge cases (W -> 0, |Xi| <= 1, with the choices a head offers there) are decided in ``base.py``'s
+docstring.
 """
 
 from __future__ import annotations
@@ -26,7 +27,13 @@ from typing import Any
 import numpy as np
 from gymnasium import spaces
 
-from sb3_trlsd.reward_heads.base import DEFAULT_W_FLOOR, RewardHead, RewardTracker
+from sb3_trlsd.reward_heads.base import (
+    DEFAULT_W_FLOOR,
+    LOG_COUNT_RULES,
+    RewardHead,
+    RewardTracker,
+    check_log_count_rule,
+)
 from sb3_trlsd.reward_heads.bernstein import BernsteinRewardHead, BernsteinTracker
 from sb3_trlsd.reward_heads.known import KnownRewardHead, RewardFn
 from sb3_trlsd.reward_heads.posterior import PosteriorSnapshot, PosteriorTracker, RidgePosteriorRewardHead
@@ -37,6 +44,7 @@ from sb3_trlsd.reward_heads.thompson import ThompsonRidgeRewardHead
 __all__ = [
     "CONFIDENCE_BOUND_HEAD_NAMES",
     "DEFAULT_W_FLOOR",
+    "LOG_COUNT_RULES",
     "REWARD_HEAD_NAMES",
     "SIMILARITIES",
     "BernsteinRewardHead",
@@ -124,6 +132,7 @@ def make_reward_head(
     sigma: float = 0.2,
     similarity: str = "state",
     reward_fn: RewardFn | None = None,
+    log_count: str | None = None,
     **kwargs: Any,
 ) -> RewardHead:
     """
@@ -142,11 +151,43 @@ def make_reward_head(
     :param sigma: similarity width of the ridge head
     :param similarity: similarity of the ridge head, ``"state"`` or ``"features"``
     :param reward_fn: the known expected reward, ``reward_fn(states, task) -> (n,)``
+    :param log_count: how log|Xi_tau| is taken at small counts, one of ``LOG_COUNT_RULES`` (None: the
+        default, log(max(|Xi_tau|, 2))); the heads without a log|Xi_tau| factor (known, posterior) ignore it
     :param kwargs: further arguments of the head (``ridge``, ``w_floor``, ``r_max``; ``cell_fn``,
-        ``n_cells``, ``cells_per_dim``, ``allowed_cells`` for the tabular heads; ``seed`` for
-        ``"thompson"``, ``reward_range`` for ``"bernstein"``)
+        ``n_cells``, ``cells_per_dim``, ``allowed_cells``, ``unvisited_value`` for the tabular heads; ``seed``
+        for ``"thompson"``, ``reward_range`` for ``"bernstein"``)
     :return: the head
     """
+    rule = None if log_count is None else check_log_count_rule(log_count)
+    head = _named_head(
+        name,
+        task=task,
+        features=features,
+        state_space=state_space,
+        kappa=kappa,
+        sigma=sigma,
+        similarity=similarity,
+        reward_fn=reward_fn,
+        **kwargs,
+    )
+    if rule is not None:
+        head.log_count_rule = rule
+    return head
+
+
+def _named_head(
+    name: str,
+    *,
+    task: int,
+    features: Callable[[np.ndarray], np.ndarray] | None,
+    state_space: spaces.Box | None,
+    kappa: float,
+    sigma: float,
+    similarity: str,
+    reward_fn: RewardFn | None,
+    **kwargs: Any,
+) -> RewardHead:
+    """The head ``make_reward_head`` names, before its log-count rule is set."""
     if name == "ridge":
         if features is None:
             raise ValueError("the 'ridge' reward_head needs features (Phi, e.g. an RBFGrid)")

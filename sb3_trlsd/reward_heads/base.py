@@ -18,8 +18,21 @@ Edge cases, decided here so that R^, CI and R~ are never infinite or NaN for fin
   1,000 samples) dwarfs any reward the maze gives, which is the "infinitely optimistic where never
   visited" behaviour of UCB the paper builds on, kept finite so that FQI stays numerically sane. Where an
   upper bound of the reward is known, ``r_max`` caps R~ instead.
-- |Xi_tau| <= 1: log 1 = 0 would remove all optimism after the first sample and log 0 = -inf, so the log
-  factor is log(max(|Xi_tau|, 2)). With no sample, R^ = 0 and the bonus is the floored maximum everywhere.
+- |Xi_tau| <= 1: log 1 = 0 would remove all optimism after the first sample and log 0 = -inf. The paper
+  does not say what it did; a head's ``log_count_rule`` picks one of ``LOG_COUNT_RULES``:
+
+  - ``"at_least_2"`` (the default): log(max(|Xi_tau|, 2)). Eq. 9 and 10 as written from two samples on, and
+    log 2 before, so that the head is optimistic from its first fit (at a task's first step, with no
+    sample) and stays so after its first sample. With no sample, R^ = 0 and the bonus is the floored
+    maximum everywhere.
+  - ``"plus_1"``: log(|Xi_tau| + 1), the smoothing UCB-style bounds often use (log(t + 1)): continuous in
+    |Xi_tau|, log 2 at one sample as the default, but 0 with no sample, so a task's first fit at its first
+    step sees no optimism at all (R~ = 0 everywhere).
+  - ``"at_least_1"``: log(max(|Xi_tau|, 1)), eq. 9 and 10 taken literally with log 0 read as 0 (no count,
+    no bonus): no optimism at all before the second sample.
+
+  Under the last two the CI is 0 at a first fit; ``refit_due`` then refits once it is no longer 0 (a CI of 0
+  cannot be "divided by 2", and the task would otherwise never be refitted).
 """
 
 from __future__ import annotations
@@ -32,25 +45,43 @@ import numpy as np
 from sb3_trlsd.arrays import GrowableArray
 
 __all__ = [
+    "DEFAULT_LOG_COUNT_RULE",
     "DEFAULT_W_FLOOR",
+    "LOG_COUNT_RULES",
     "RewardHead",
     "RewardTracker",
+    "check_log_count_rule",
     "check_positive",
     "confidence_width",
     "log_sample_count",
 ]
 
 DEFAULT_W_FLOOR = 1e-6
+# log|Xi_tau| at small counts (see the module docstring): rule -> the count whose log is taken.
+LOG_COUNT_RULES = {
+    "at_least_2": lambda n: max(n, 2),
+    "plus_1": lambda n: n + 1,
+    "at_least_1": lambda n: max(n, 1),
+}
+DEFAULT_LOG_COUNT_RULE = "at_least_2"
 
 
-def log_sample_count(n_samples: int) -> float:
+def log_sample_count(n_samples: int, rule: str = DEFAULT_LOG_COUNT_RULE) -> float:
     """
-    log|Xi_tau| of eq. 9 and 10, with |Xi_tau| taken as at least 2 (see the module docstring).
+    log|Xi_tau| of eq. 9 and 10 under one of ``LOG_COUNT_RULES`` (see the module docstring).
 
     :param n_samples: |Xi_tau|
-    :return: log(max(|Xi_tau|, 2))
+    :param rule: how small counts are taken (default: log(max(|Xi_tau|, 2)))
+    :return: the log factor, >= 0
     """
-    return float(np.log(max(n_samples, 2)))
+    return float(np.log(LOG_COUNT_RULES[rule](n_samples)))
+
+
+def check_log_count_rule(rule: str) -> str:
+    """``rule`` if it is one of ``LOG_COUNT_RULES``; otherwise a ValueError naming ``log_count`` and them."""
+    if rule not in LOG_COUNT_RULES:
+        raise ValueError(f"log_count must be one of {list(LOG_COUNT_RULES)}, got {rule!r}")
+    return rule
 
 
 def confidence_width(log_count: float, weights: np.ndarray, w_floor: float) -> np.ndarray:
@@ -130,6 +161,9 @@ class RewardHead(ABC):
     """
 
     has_uncertainty = True  # False for a head whose CI is 0 by construction (the known reward)
+    # How log|Xi_tau| is taken at small counts; set through ``log_count_rule`` (heads saved before it existed
+    # read this class default, the rule they were built with).
+    _log_count_rule = DEFAULT_LOG_COUNT_RULE
 
     def __init__(self, kappa: float = 0.1, r_max: float | None = None):
         if not kappa >= 0 or not np.isfinite(kappa):
@@ -148,6 +182,24 @@ class RewardHead(ABC):
 
     def _repr_items(self) -> list[str]:
         return [f"kappa={self.kappa:g}"]
+
+    @property
+    def log_count_rule(self) -> str:
+        """How log|Xi_tau| of eq. 9 and 10 is taken at small counts: one of ``LOG_COUNT_RULES``."""
+        return self._log_count_rule
+
+    @log_count_rule.setter
+    def log_count_rule(self, rule: str) -> None:
+        self._log_count_rule = check_log_count_rule(rule)
+
+    def log_count(self, n_samples: int) -> float:
+        """
+        log|Xi_tau| under the head's ``log_count_rule``.
+
+        :param n_samples: |Xi_tau|
+        :return: the log factor of eq. 9 and 10
+        """
+        return log_sample_count(n_samples, self._log_count_rule)
 
     def check_samples(self, states: np.ndarray, rewards: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """
@@ -254,7 +306,11 @@ class RewardHead(ABC):
         :return: whether the task is due for a refit
         """
         then, now = (value[0] for value in self.uncertainty_then_and_now(snapshot, state))
-        return bool(then > 0 and then >= update_ratio * now)
+        if then == 0:
+            # A CI of 0 cannot be divided: the refit saw no optimism here, and it is due once there is some
+            # (a first fit with log|Xi_tau| = 0, see the module docstring; never under the default rule).
+            return bool(now > 0)
+        return bool(then >= update_ratio * now)
 
     @abstractmethod
     def _update(self, states: np.ndarray, rewards: np.ndarray) -> None:

@@ -20,7 +20,6 @@ from sb3_trlsd.reward_heads.base import (
     RewardHead,
     RewardTracker,
     check_positive,
-    log_sample_count,
 )
 from sb3_trlsd.reward_heads.ridge import KERNEL_BLOCK
 
@@ -167,7 +166,7 @@ class BernsteinRewardHead(RewardHead):
         :param n_samples: |Xi_tau| of the sums
         :return: (n,)
         """
-        return empirical_bernstein_width(sums, log_sample_count(n_samples), self.reward_range, self.w_floor)
+        return empirical_bernstein_width(sums, self.log_count(n_samples), self.reward_range, self.w_floor)
 
     def optimistic_from_sums(self, sums: np.ndarray) -> np.ndarray:
         """

@@ -17,7 +17,6 @@ from sb3_trlsd.reward_heads.base import (
     RewardHead,
     check_positive,
     confidence_width,
-    log_sample_count,
 )
 
 __all__ = ["CellFn", "GridCells", "TabularRewardHead"]
@@ -89,6 +88,13 @@ class TabularRewardHead(RewardHead):
     Per-cell mean rewards and the UCB-style CI of eq. 10: R^(s) = mean reward of the samples in the cell of
     s, CI(s) = kappa sqrt(log|Xi_tau| / N_tau(s)) with N_tau(s) the samples of that cell.
 
+    Eq. 10 is undefined in a cell with no sample (N = 0), and the paper does not say what R~ is there. By
+    default N is floored at ``w_floor``: a bonus so large (~263 for kappa = 0.1 and 1,000 samples) that every
+    unvisited cell outranks every visited one, UCB's "try each arm once" (``reward_heads.base``). With
+    ``unvisited_value``, R~ of an allowed unvisited cell is that value instead (R^ is 0 there, so the bonus is
+    the value): R-MAX's "an unknown state is worth the largest reward" (Brafman & Tennenholtz, cited by the
+    paper) with the reward bound, 1 on the maze; visited cells keep eq. 10, and may outrank it.
+
     :param cell_fn: states (n, d) -> cell ids (n,) in 0..n_cells-1 (e.g. a ``GridCells``)
     :param n_cells: number of cells, >= 1
     :param kappa: optimism (eq. 10), >= 0
@@ -96,6 +102,8 @@ class TabularRewardHead(RewardHead):
         there is no bonus. None: every cell
     :param w_floor: floor on the count N_tau(s) of an unvisited cell, > 0 (see ``reward_heads.base``)
     :param r_max: optional cap on R~
+    :param unvisited_value: R~ of an allowed cell with no sample when kappa > 0 (None: eq. 10 with N floored
+        at ``w_floor``), finite
     """
 
     def __init__(
@@ -106,8 +114,15 @@ class TabularRewardHead(RewardHead):
         allowed_cells: Iterable[int] | None = None,
         w_floor: float = DEFAULT_W_FLOOR,
         r_max: float | None = None,
+        unvisited_value: float | None = None,
     ):
         super().__init__(kappa, r_max)
+        if unvisited_value is not None and not np.isfinite(unvisited_value):
+            raise ValueError(
+                "unvisited_value must be a finite number or None (eq. 10 with the floor), "
+                f"got {unvisited_value}"
+            )
+        self.unvisited_value = None if unvisited_value is None else float(unvisited_value)
         if not callable(cell_fn):
             raise ValueError(f"cell_fn must be a function of states (n, d) -> cell ids (n,), got {cell_fn!r}")
         if not (isinstance(n_cells, (int, np.integer)) and n_cells >= 1):
@@ -173,9 +188,17 @@ class TabularRewardHead(RewardHead):
 
     def uncertainty_as_of(self, snapshot: tuple[np.ndarray, int], states: np.ndarray) -> np.ndarray:
         counts, n_samples = snapshot
-        per_cell = confidence_width(log_sample_count(n_samples), counts, self.w_floor)  # eq. 10 / kappa
+        per_cell = confidence_width(self.log_count(n_samples), counts, self.w_floor)  # eq. 10 / kappa
         return np.where(self.allowed, per_cell, 0.0)[self.cells(states)]
 
     def uncertainty(self, states: np.ndarray) -> np.ndarray:
         # The live counts, not a copy: this runs at every step.
         return self.uncertainty_as_of((self.counts, self.n_samples), states)
+
+    def bonus(self, states: np.ndarray) -> np.ndarray:
+        bonus = super().bonus(states)
+        if self.unvisited_value is None or self.kappa == 0:
+            return bonus
+        cells = self.cells(states)
+        unvisited = (self.counts[cells] == 0) & self.allowed[cells]
+        return np.where(unvisited, self.unvisited_value, bonus)  # R^ = 0 there: R~ = unvisited_value
