@@ -18,8 +18,16 @@ from sb3_trlsd.feature_maps import FeatureMap, default_kernel_width, make_featur
 from sb3_trlsd.observations import state_space_of, task_count_of
 from sb3_trlsd.policies import LinearPolicy
 from sb3_trlsd.reward_heads import RewardFn, RewardHead, make_reward_head
+from sb3_trlsd.task_learner import TaskLearner
 
-__all__ = ["known_reward_fn", "new_reward_head", "shared_features", "similarity_width", "state_box"]
+__all__ = [
+    "known_reward_fn",
+    "new_reward_head",
+    "new_task_learner",
+    "shared_features",
+    "similarity_width",
+    "state_box",
+]
 
 FEATURES_SIMILARITY_SIGMA = 0.2  # eq. 7 compares feature vectors, whose scale is the features' own
 
@@ -162,3 +170,15 @@ def new_reward_head(model: Any, task: int) -> RewardHead:
         similarity=model.similarity,
         **model.reward_head_kwargs,
     )
+
+
+def new_task_learner(model: Any, task: int) -> TaskLearner:
+    """
+    The learning state of ``task`` with no samples, as the model's settings say: its reward head
+    (``new_reward_head``), the model's ``update_ratio`` and ``first_fit``.
+
+    :param model: the model
+    :param task: the task
+    :return: the learner
+    """
+    return TaskLearner(task, new_reward_head(model, task), model.update_ratio, first_fit=model.first_fit)

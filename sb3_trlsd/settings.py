@@ -12,6 +12,7 @@ from gymnasium import spaces
 from sb3_trlsd.feature_maps import FEATURE_MAPS, FeatureMap
 from sb3_trlsd.observations import state_space_of
 from sb3_trlsd.reward_heads import REWARD_HEAD_NAMES, SIMILARITIES, RewardHead
+from sb3_trlsd.task_learner import FIRST_FIT_RULES
 
 __all__ = ["check_arguments", "hyperparameters_of", "resolve_policy"]
 
@@ -90,6 +91,11 @@ def check_arguments(model: Any) -> None:
     integer("fqi_max_iterations", 1, none_allowed=True)
     if model.similarity not in SIMILARITIES:
         raise ValueError(f"similarity must be 'state' or 'features', got {model.similarity!r}")
+    if model.first_fit not in FIRST_FIT_RULES:
+        raise ValueError(
+            f"first_fit must be one of {list(FIRST_FIT_RULES)} (when a task's Q is first fitted), "
+            f"got {model.first_fit!r}"
+        )
     source = model.source_transitions
     _require(
         not isinstance(source, bool)
@@ -123,6 +129,7 @@ def hyperparameters_of(model: Any) -> dict[str, int | float | str | bool]:
         "sigma": model.sigma,
         "similarity": model.similarity,
         "update_ratio": model.update_ratio,
+        "first_fit": model.first_fit,
         "fqi_max_iterations": model.fqi_max_iterations,
         "fqi_tol": model.fqi_tol,
         "feature_map": model.feature_map

@@ -17,7 +17,12 @@ import numpy as np
 from sb3_trlsd.buffers import BufferCursor, SharedDynamicsReplayBuffer
 from sb3_trlsd.reward_heads import RewardHead, RewardTracker
 
-__all__ = ["TaskLearner"]
+__all__ = ["FIRST_FIT_RULES", "TaskLearner"]
+
+# When a task's Q-function is first fitted (the paper does not say): before its first action, on R~ of no
+# sample (the optimism of an empty head); or once its first sample (and reward) is in, acting before that
+# with the unfitted Q (every action ties: the policy's argmax takes the first).
+FIRST_FIT_RULES = ("first_step", "first_sample")
 
 
 class TaskLearner:
@@ -28,13 +33,20 @@ class TaskLearner:
     :param head: the task's reward head (its own samples only)
     :param update_ratio: the task is due for a refit once the uncertainty at an encountered state has been
         divided by this since its last refit (> 1)
+    :param first_fit: when the task is first fitted, one of ``FIRST_FIT_RULES``: ``"first_step"`` (before
+        its first action, see ``fit_before_acting``) or ``"first_sample"`` (due once its first sample is in)
     """
 
-    def __init__(self, task: int, head: RewardHead, update_ratio: float):
+    first_fit = "first_step"  # learners saved before the rule existed read this class default
+
+    def __init__(self, task: int, head: RewardHead, update_ratio: float, first_fit: str = "first_step"):
         if not update_ratio > 1:
             raise ValueError(
                 f"update_ratio must be > 1 (the CI must shrink to trigger a refit), got {update_ratio}"
             )
+        if first_fit not in FIRST_FIT_RULES:
+            raise ValueError(f"first_fit must be one of {list(FIRST_FIT_RULES)}, got {first_fit!r}")
+        self.first_fit = first_fit
         self.task = int(task)
         self.head = head
         self.update_ratio = float(update_ratio)
@@ -59,6 +71,11 @@ class TaskLearner:
         """Whether the task's Q-function was fitted at least once."""
         return self.refits > 0
 
+    @property
+    def fit_before_acting(self) -> bool:
+        """Whether the task's Q-function must be fitted before its next action (its first, by default)."""
+        return not self.fitted and self.first_fit == "first_step"
+
     def observe(self, state: np.ndarray, reward: float, n_rows: int) -> None:
         """
         Add one online sample of the task to its reward head, and mark the task due if the trigger fires:
@@ -67,6 +84,8 @@ class TaskLearner:
         A head without uncertainty (the known reward) has nothing to divide: it refits when the shared buffer
         has grown by ``update_ratio`` since the last refit, so that new dynamics data reaches its policy. A
         head may have a rule of its own (``RewardHead.refit_due``: the OFUL head's is determinant doubling).
+        A task never fitted is due after this sample under the ``"first_sample"`` rule (and waits for its
+        first step under ``"first_step"``).
 
         :param state: the transition's start state (d,)
         :param reward: the reward observed there
@@ -74,7 +93,10 @@ class TaskLearner:
         """
         state = np.asarray(state, dtype=np.float64).reshape(1, -1)
         self.head.update(state, np.array([reward], dtype=np.float64))
-        if not self.fitted or self.due:
+        if not self.fitted:
+            self.due = self.due or self.first_fit == "first_sample"
+            return
+        if self.due:
             return
         if not self.head.has_uncertainty:
             self.due = n_rows >= self.update_ratio * max(self.rows_at_refit, 1)

@@ -15,7 +15,7 @@ from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, Schedule
 
 from sb3_trlsd.buffers import SharedDynamicsReplayBuffer
-from sb3_trlsd.builders import new_reward_head, shared_features, state_box
+from sb3_trlsd.builders import new_task_learner, shared_features, state_box
 from sb3_trlsd.callbacks import log_refit
 from sb3_trlsd.data import Transitions
 from sb3_trlsd.feature_maps import FeatureMap
@@ -41,8 +41,9 @@ class TRLSD(TRLSDInterface, OffPolicyAlgorithm):
     Paper: Laroche & Barlier, "Transfer Reinforcement Learning with Shared Dynamics", AAAI 2017.
     Every transition of every task goes to one shared buffer; for a target task, the buffer's rewards are
     replaced by an optimistic proxy R~ = R^ + CI learnt from that task's own samples (section 3), and its Q
-    is refitted on that relabelled set by Fitted-Q Iteration (Algorithm 1): at its first step, then whenever
-    the CI at an encountered state has been divided by ``update_ratio``. Each task's learning state is a
+    is refitted on that relabelled set by Fitted-Q Iteration (Algorithm 1): at its first step (or after its
+    first sample, ``first_fit``), then whenever the CI at an encountered state has been divided by
+    ``update_ratio``. Each task's learning state is a
     ``TaskLearner``; ``TRLSDInterface`` adds SB3's save/load (with the buffer's rows), learn and predict.
 
     Defaults are the paper's (section 4) where it gives them: kappa and sigma of the continuous setting,
@@ -63,6 +64,9 @@ class TRLSD(TRLSDInterface, OffPolicyAlgorithm):
         a distance between feature vectors (None: 0.2)
     :param similarity: ``"state"`` (eq. 6, on states) or ``"features"`` (eq. 7, on RBF features)
     :param update_ratio: refit a task when the CI at an encountered state has been divided by this (> 1)
+    :param first_fit: when a task's Q is first fitted (the paper does not say): ``"first_step"``, before its
+        first action, on the optimism of a head with no sample; ``"first_sample"``, once its first sample is
+        in (its first action is the unfitted Q's argmax)
     :param fqi_max_iterations: cap on Fitted-Q iterations per refit (None: the policy's own default)
     :param fqi_tol: Fitted-Q stops when the parameters move by less than this, relative to their scale
     :param feature_map: Phi, shared by the linear policy and the ridge heads: ``"rbf"`` (eq. 11's grid),
@@ -117,6 +121,7 @@ class TRLSD(TRLSDInterface, OffPolicyAlgorithm):
         sigma: float | Sequence[float] | None = None,
         similarity: str = "state",
         update_ratio: float = 2.0,
+        first_fit: str = "first_step",
         fqi_max_iterations: int | None = None,
         fqi_tol: float = DEFAULT_TOL,
         feature_map: str | FeatureMap = "auto",
@@ -171,6 +176,7 @@ class TRLSD(TRLSDInterface, OffPolicyAlgorithm):
         self.sigma = sigma
         self.similarity = similarity
         self.update_ratio = update_ratio
+        self.first_fit = first_fit
         self.fqi_max_iterations = fqi_max_iterations
         self.fqi_tol = fqi_tol
         self.feature_map = feature_map
@@ -216,7 +222,7 @@ class TRLSD(TRLSDInterface, OffPolicyAlgorithm):
         if not 0 <= task < self.policy.n_tasks:
             raise ValueError(f"task must be in 0..{self.policy.n_tasks - 1}, got {task}")
         if task not in self.task_learners:
-            self.task_learners[task] = TaskLearner(task, new_reward_head(self, task), self.update_ratio)
+            self.task_learners[task] = new_task_learner(self, task)
         return self.task_learners[task]
 
     def reward_head_of(self, task: int) -> RewardHead:
@@ -256,12 +262,15 @@ class TRLSD(TRLSDInterface, OffPolicyAlgorithm):
     def _sample_action(
         self, learning_starts: int, action_noise: ActionNoise | None = None, n_envs: int = 1
     ) -> tuple[np.ndarray, np.ndarray]:
-        # A task's Q is fitted at its first step, before the policy acts on it.
+        # A task's Q is fitted at its first step, before the policy acts on it (unless ``first_fit`` waits).
         if self.num_timesteps >= learning_starts and self._last_obs is not None:
             _, tasks = split_observation(self._last_obs, self.replay_buffer.obs_shape[0])
             for task in np.unique(tasks):
-                if not self.task_learner(task).fitted:
+                learner = self.task_learner(task)
+                if learner.fit_before_acting:
                     self.update_policy(int(task))
+                elif not learner.fitted:  # acting before the first fit is first_fit's rule: no warning
+                    self._warned_unfitted.add(int(task))
         return super()._sample_action(learning_starts, action_noise, n_envs)
 
     def _on_step(self) -> None:
@@ -278,16 +287,17 @@ class TRLSD(TRLSDInterface, OffPolicyAlgorithm):
 
     def act(self, obs: dict[str, np.ndarray] | np.ndarray) -> int:
         """
-        The action ``learn`` takes from one observation: the task's Q is fitted first if it never was, then
-        the greedy action. With ``add_online_transition``, it drives TRLSD from a loop of one's own (the
-        experiments' fast path) with the same result as ``learn``, without SB3's rollout machinery.
+        The action ``learn`` takes from one observation: the task's Q is fitted first if it never was (under
+        ``first_fit="first_step"``), then the greedy action. With ``add_online_transition``, it drives TRLSD
+        from a loop of one's own (the experiments' fast path) with the same result as ``learn``, without SB3's
+        rollout machinery.
 
         :param obs: one observation of the env (not batched)
         :return: the action
         """
         states, tasks = split_observation(obs, self.replay_buffer.obs_shape[0])
         task = int(tasks[0])
-        if not self.task_learner(task).fitted:
+        if self.task_learner(task).fit_before_acting:
             self.update_policy(task)
         return int(self.policy.q_values(states, task)[0].argmax())
 
@@ -341,8 +351,8 @@ class TRLSD(TRLSDInterface, OffPolicyAlgorithm):
         """
         Recompute the policy of ``task`` now: relabel the whole shared buffer with the task's reward proxy R~
         (Algorithm 1, psi) and fit its Q-function on it by Fitted-Q Iteration. ``learn`` calls this at a
-        task's first step and whenever its refit trigger fires; call it directly to learn offline from
-        transitions loaded with ``keep_rewards=True`` (or with the ``"known"`` reward head).
+        task's first fit (``first_fit``) and whenever its refit trigger fires; call it directly to learn
+        offline from transitions loaded with ``keep_rewards=True`` (or with the ``"known"`` reward head).
 
         :param task: the task index
         """

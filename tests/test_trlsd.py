@@ -242,6 +242,7 @@ def test_multi_task_env_triggers_each_task_on_its_own():
         ({"rbf_per_dim": 0}, "rbf_per_dim"),
         ({"rbf_sigma": -0.2}, "rbf_sigma"),
         ({"policy_kwargs": {"rbf_per_dim": 7}}, "rbf_per_dim"),
+        ({"first_fit": "first_reward"}, "first_fit"),
     ],
     ids=[
         "negative-kappa",
@@ -263,6 +264,7 @@ def test_multi_task_env_triggers_each_task_on_its_own():
         "no-rbf",
         "negative-rbf-sigma",
         "rbf-in-policy-kwargs",
+        "unknown-first-fit",
     ],
 )
 def test_bad_hyperparameters_are_refused_by_name(kwargs, argument):
