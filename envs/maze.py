@@ -30,8 +30,10 @@ __all__ = [
     "NORTH",
     "N_TASKS",
     "SOUTH",
+    "START_RULES",
     "WEST",
     "SharedDynamicsMaze",
+    "check_start",
     "expected_reward",
     "task_cell",
     "task_index",
@@ -40,7 +42,9 @@ __all__ = [
 
 N_TASKS = MAZE_SIZE * MAZE_SIZE
 TASK_SCHEDULES = ("fixed", "round_robin", "random")
+START_RULES = ("uniform", "continue")  # or a fixed start state (x, y)
 Task = int | tuple[int, int]
+Start = str | tuple[float, float]
 
 
 def task_index(task: Task) -> int:
@@ -135,7 +139,10 @@ class SharedDynamicsMaze(gym.Env):
     square (0, 5)^2 (y grows southwards) and the global index `5 (i - 1) + (j - 1)` of the current task.
 
     ## Starting State
-    Uniform in the square, at every reset.
+    By default uniform in the square, at every reset. `start="continue"`: where the previous trajectory of
+    the same task ended (uniform for a task's first trajectory, and after a seeded reset); `start=(x, y)`: a
+    fixed state. The uniform draw is made at every reset whatever the rule, so that the env's random stream
+    does not depend on it.
 
     ## Rewards
     Task tau_ij (eq. 12) draws the reward of a transition for the state s_t it starts from:
@@ -156,6 +163,8 @@ class SharedDynamicsMaze(gym.Env):
     - `walls`: axis-aligned segments `((x0, y0), (x1, y1))` on the integer grid, or an `(m, 4)` array of
       them (default: the two walls above); `()` for an open grid. The border is always a wall.
     - `termination_prob`: probability that a step ends the trajectory (default 0.02, as in the paper).
+    - `start`: `"uniform"` (default), `"continue"` or a fixed state `(x, y)` in the open square (see
+      Starting State); `random_transitions` takes uniform or fixed starts.
     - `reward_noise_std`: standard deviation of the reward noise (default 1.0, eq. 12).
     - `along_noise_std`, `across_noise_std`: standard deviations of the move noise along the action's
       axis and across it (defaults 0.5 and 0.25).
@@ -178,6 +187,7 @@ class SharedDynamicsMaze(gym.Env):
         reward_noise_std: float = 1.0,
         along_noise_std: float = 0.5,
         across_noise_std: float = 0.25,
+        start: Start = "uniform",
         render_mode: str | None = None,
     ):
         if task is not None and tasks is not None:
@@ -196,6 +206,7 @@ class SharedDynamicsMaze(gym.Env):
         ):
             if not value >= 0:
                 raise ValueError(f"{name} must be >= 0, got {value}")
+        self.start = check_start(start)
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(
                 f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}"
@@ -218,6 +229,7 @@ class SharedDynamicsMaze(gym.Env):
         self.state = np.full(2, MAZE_SIZE / 2)
         self.trajectory: list[np.ndarray] = []
         self._n_scheduled = 0  # trajectories whose task the round robin chose
+        self._ends: dict[int, np.ndarray] = {}  # where each task's last trajectory ended ("continue")
 
     def expected_reward(self, states: np.ndarray, task: Task | None = None) -> np.ndarray:
         """Noise-free E[R_task(s)] for an ``(n, 2)`` array of states (default: the current task)."""
@@ -240,6 +252,11 @@ class SharedDynamicsMaze(gym.Env):
         :return: arrays ``states``, ``actions``, ``next_states``, ``rewards``, ``tasks``, ``truncations``,
             ``terminations``, one row per transition, trajectory after trajectory
         """
+        if self.start == "continue":
+            raise ValueError(
+                "random_transitions draws independent trajectories; with start='continue' each starts where "
+                "its task's previous one ended: step the env instead"
+            )
         rng = np.random.default_rng(seed)
         cap = n_transitions if max_episode_steps is None else min(max_episode_steps, n_transitions)
         full_lengths, cut_lengths = trajectory_lengths(rng, self.termination_prob, n_transitions, cap)
@@ -253,6 +270,8 @@ class SharedDynamicsMaze(gym.Env):
             "tasks": np.repeat(tasks, cut_lengths),
         }
         states = rng.uniform(0.0, MAZE_SIZE, size=(n_trajectories, 2))
+        if not isinstance(self.start, str):
+            states[:] = self.start
         active = np.arange(n_trajectories)  # trajectories still running, and their current states
         for step in range(int(cut_lengths.max())):
             running = cut_lengths[active] > step
@@ -291,16 +310,20 @@ class SharedDynamicsMaze(gym.Env):
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         """
-        Start a trajectory from a uniform state, with the task its schedule gives.
+        Start a trajectory from the state ``start`` gives (uniform by default), with the task its schedule
+        gives.
 
         :param seed: reseeds ``self.np_random`` and restarts the round robin
         :param options: ``{"task": task}`` forces the task of this trajectory
         :return: the observation and ``info`` (``task``, ``cell``)
         """
         super().reset(seed=seed)
+        if self.trajectory:
+            self._ends[self.task] = self.state.copy()
         if seed is not None:
             # A seeded reset starts everything afresh, the round robin included: same seed, same trajectory.
             self._n_scheduled = 0
+            self._ends.clear()
         if options and options.get("task") is not None:
             self.task = task_index(options["task"])
         elif self.task_schedule == "round_robin":
@@ -311,6 +334,10 @@ class SharedDynamicsMaze(gym.Env):
         else:
             self.task = self.tasks[0]
         self.state = self.np_random.uniform(0.0, MAZE_SIZE, size=2)
+        if not isinstance(self.start, str):
+            self.state = np.array(self.start)
+        elif self.start == "continue" and self.task in self._ends:
+            self.state = self._ends[self.task].copy()
         self.trajectory = [self.state.copy()]
         return self._observation(), self._info()
 
@@ -347,3 +374,22 @@ class SharedDynamicsMaze(gym.Env):
         return render_maze(
             self.walls, target_cells=[task_cell(self.task)], trajectory=np.array(self.trajectory)
         )
+
+
+def check_start(start: Start) -> Start:
+    """
+    ``start`` as the maze keeps it: a rule of ``START_RULES``, or a fixed state as a tuple of two floats.
+
+    :raises ValueError: naming ``start`` for anything else
+    """
+    if isinstance(start, str):
+        if start not in START_RULES:
+            raise ValueError(f"start must be one of {START_RULES} or a state (x, y), got {start!r}")
+        return start
+    point = np.asarray(start, dtype=np.float64)
+    if point.shape != (2,) or not np.all((point > 0) & (point < MAZE_SIZE)):
+        raise ValueError(
+            f"start must be one of {START_RULES} or a state (x, y) in the open square (0, {MAZE_SIZE})^2, "
+            f"got {start!r}"
+        )
+    return float(point[0]), float(point[1])
