@@ -21,6 +21,7 @@ import sb3_trlsd_envs
 from sb3_trlsd.experiments import FIGURES
 from sb3_trlsd.experiments.backends import BACKENDS
 from sb3_trlsd.experiments.benchmark import FAMILIES
+from sb3_trlsd.experiments.protocols import DEFAULT_PROTOCOL, PRESETS
 
 __all__ = ["main"]
 
@@ -199,6 +200,7 @@ def reproduce_figure(figure: str, out: Path, cache: Path | None, args: argparse.
         cache=cache,
         backend=args.backend,
         address=args.address,
+        protocol=args.protocol,
     )
     files = ", ".join(str(out.absolute() / f"{figure}.{ext}") for ext in ("png", "csv", "json"))
     print(f"{figure} done in {data['wall_time_seconds']:.0f} s: {files}\n\n{results_table(data)}\n")
@@ -301,6 +303,16 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="with --backend ray, the cluster to join: auto (started by 'ray start' here, or RAY_ADDRESS), "
         "HOST:PORT or ray://HOST:PORT (default: start a local one)",
+    )
+    reproduce.add_argument(
+        "--protocol",
+        choices=list(PRESETS),
+        default=DEFAULT_PROTOCOL,
+        metavar="NAME",
+        help="the choices the paper leaves open, a named set (recorded in the JSON; runs of different "
+        "protocols are kept apart): "
+        + "; ".join(f"{name}: {preset.changes}" for name, preset in PRESETS.items())
+        + " (default: %(default)s)",
     )
     add_cache_options(reproduce)
     reproduce.set_defaults(run=reproduce_command)

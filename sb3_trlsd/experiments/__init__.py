@@ -11,7 +11,7 @@ from pathlib import Path
 
 __all__ = ["FIGURES", "reproduce"]
 
-# Figure -> (module of sb3_trlsd.experiments, function(out, runs, seed, workers, cache, backend) -> summary).
+# Figure -> (module of sb3_trlsd.experiments, function(out, how: Reproduction) -> summary).
 # Imported on use, so that listing the figures (the command line's help) does not load torch and SB3.
 FIGURES: dict[str, tuple[str, str]] = {
     "fig1": ("known_reward", "reproduce"),
@@ -34,6 +34,7 @@ def reproduce(
     cache: str | Path | None = None,
     backend: str = "loky",
     address: str | None = None,
+    protocol: str = "as-built",
 ) -> dict:
     """
     Run one figure's experiment and write its CSV, PNG and JSON to ``out``.
@@ -50,6 +51,7 @@ def reproduce(
         extra ``sb3-trlsd[cluster]``); the kept runs stay on this machine either way
     :param address: (ray) the cluster to join: ``"auto"``, ``"host:port"`` or ``"ray://host:port"``; None:
         start a local one
+    :param protocol: the name of the choices the paper leaves open (``protocols.PRESETS``; default: today's)
     :return: the figure's JSON summary
     """
     if figure not in FIGURES:
@@ -59,10 +61,19 @@ def reproduce(
     if workers < 1:
         raise ValueError(f"workers must be >= 1, got {workers}")
     from sb3_trlsd.experiments.backends import Backend
+    from sb3_trlsd.experiments.protocols import protocol_named
+    from sb3_trlsd.experiments.reproduction import Reproduction
 
-    where = Backend(backend, address)
+    how = Reproduction(
+        runs=runs,
+        seed=seed,
+        workers=workers,
+        cache=None if cache is None else Path(cache),
+        backend=Backend(backend, address),
+        protocol=protocol_named(protocol),
+    )
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     module, function = FIGURES[figure]
     run = getattr(importlib.import_module(f"sb3_trlsd.experiments.{module}"), function)
-    return run(out, runs, seed, workers, cache=None if cache is None else Path(cache), backend=where)
+    return run(out, how)

@@ -2,8 +2,10 @@
 The figures' runs in batches: each method's runs split into ``SOURCE_SETS`` batches of consecutive runs
 (one method, different tasks and seeds), stepped in lockstep (``sb3_trlsd.lockstep``) with TRLSD's own task
 learners and Fitted-Q function; the runs of a transfer batch share one source set, drawn from
-``source_seed(seed, b)``, so every method sees the same tasks, source sets and env seeds. A run of a batch
-takes the actions of that run alone (``runner.py``) on the same source set (``tests/test_lockstep.py``).
+``source_seed(seed, b)``, so every method sees the same tasks, source sets and env seeds (under a protocol
+with ``source_sets="per_run"``, each run draws its own, from ``run_source_seed``). A run of a batch takes the
+actions of that run alone (``runner.py``) on the same source set (``tests/test_lockstep.py``). The choices
+the paper leaves open come with the ``protocol`` of each call (``sb3_trlsd.experiments.protocols``).
 ``run_jobs`` (``sb3_trlsd.experiments.jobs``) spreads the batches over processes and, given a cache
 directory, keeps the finished ones there to resume a killed reproduction.
 """
@@ -23,6 +25,7 @@ from sb3_trlsd.data import Transitions, collect_transitions
 from sb3_trlsd.experiments.backends import LOKY, Backend
 from sb3_trlsd.experiments.env_batches import env_batch
 from sb3_trlsd.experiments.jobs import run_jobs
+from sb3_trlsd.experiments.protocols import AS_BUILT, Protocol
 from sb3_trlsd.experiments.runner import (
     ONLINE_TRANSITIONS,
     SOURCE_TRANSITIONS,
@@ -30,11 +33,20 @@ from sb3_trlsd.experiments.runner import (
     RunRecord,
     multitask_env,
     run_online,
+    target_env,
 )
 from sb3_trlsd.lockstep import Lockstep
 from sb3_trlsd_envs import MAZE_ID, N_TASKS
 
-__all__ = ["SOURCE_SETS", "batch_runs", "multitask_batch", "source_seed", "transfer_batch", "transfer_runs"]
+__all__ = [
+    "SOURCE_SETS",
+    "batch_runs",
+    "multitask_batch",
+    "run_source_seed",
+    "source_seed",
+    "transfer_batch",
+    "transfer_runs",
+]
 
 # Distinct source sets per method of a figure: its runs go in this many batches of consecutive runs, each
 # batch stepped in lockstep on its own source set; standard errors are taken over the batches' means.
@@ -52,6 +64,7 @@ def transfer_runs(
     env_kwargs: dict[str, Any] | None = None,
     cache: Path | None = None,
     backend: Backend = LOKY,
+    protocol: Protocol = AS_BUILT,
 ) -> dict[str, list[RunRecord]]:
     """
     ``runs`` transfer runs of each method, run ``r`` on ``tasks[r % len(tasks)]`` with seed ``seed + r``, in
@@ -61,9 +74,11 @@ def transfer_runs(
 
     :param n_source: random source transitions (None: ``SOURCE_TRANSITIONS``)
     :param n_online: online transitions (None: ``ONLINE_TRANSITIONS``)
-    :param env_kwargs: keyword arguments of the target task's env (paper's settings by default)
+    :param env_kwargs: keyword arguments of the target task's env, over the protocol's (paper's settings by
+        default)
     :param cache: directory of finished runs, see ``run_jobs`` (None: none)
     :param backend: where the runs go, see ``run_jobs``
+    :param protocol: the choices the paper leaves open (a kept run is kept under its protocol)
     :return: method label -> its runs' records
     """
     # The sizes are resolved here, not in the workers, so that a cached batch's key holds them.
@@ -80,7 +95,7 @@ def transfer_runs(
                 n_source,
                 n_online,
             ),
-            {"env_kwargs": env_kwargs, "source_set": b},
+            {"env_kwargs": env_kwargs, "source_set": b, "protocol": protocol},
         )
         for method in methods
         for b, batch in enumerate(batches)
@@ -117,6 +132,11 @@ def batch_runs(runs: int, source_sets: int = SOURCE_SETS) -> list[range]:
 def source_seed(seed: int, batch: int) -> int:
     """The seed of batch ``batch``'s source set in a figure of seed ``seed`` (distinct from the run seeds)."""
     return int(np.random.SeedSequence([seed, batch, 1]).generate_state(1)[0])
+
+
+def run_source_seed(run_seed: int) -> int:
+    """The seed of the source set of the run of seed ``run_seed`` when each run has one of its own."""
+    return int(np.random.SeedSequence([run_seed, 2]).generate_state(1)[0])
 
 
 def _source_set(method: Method, n_source: int, seed: int) -> Transitions | None:
@@ -158,34 +178,47 @@ def transfer_batch(
     n_online: int,
     env_kwargs: dict[str, Any] | None = None,
     source_set: int | None = None,
+    protocol: Protocol = AS_BUILT,
 ) -> list[RunRecord]:
     """
     Transfer runs of one method that share one source set (Figures 1, 5-7): ``n_source`` random
     transitions, their rewards discarded, then ``n_online`` online transitions, run r on ``tasks[r]`` with
     its env seeded by ``seeds[r]``; stepped in lockstep for the linear Q, one after the other (``run_online``
-    on the same source set) for another policy.
+    on the same source set) for another policy. Under a protocol with a source set per run, run r draws its
+    own from ``run_source_seed(seeds[r])`` and is stepped alone.
 
     :param source_seed: seed of the source set
-    :param env_kwargs: keyword arguments of the target tasks' envs (paper's settings by default)
-    :param source_set: the batch's index, kept in the records
+    :param env_kwargs: keyword arguments of the target tasks' envs, over the protocol's (paper's settings
+        by default)
+    :param source_set: the batch's index, kept in the records (None in those of runs with their own)
+    :param protocol: the choices the paper leaves open
     :return: one record per run
     """
     start = time.perf_counter()
     if len(tasks) != len(seeds):
         raise ValueError(f"one seed per task: {len(tasks)} tasks, {len(seeds)} seeds")
-    envs = [gym.make(MAZE_ID, task=task, **(env_kwargs or {})) for task in tasks]
-    source = _source_set(method, n_source, source_seed)
+    envs = [target_env(task, protocol, env_kwargs) for task in tasks]
+    if protocol.source_sets == "per_run":
+        sources = [_source_set(method, n_source, run_source_seed(seed)) for seed in seeds]
+        groups, source_set = [[run] for run in range(len(envs))], None
+    else:
+        sources = [_source_set(method, n_source, source_seed)] * len(envs)
+        groups = [list(range(len(envs)))]
     if method.policy != "LinearPolicy":
         records = []
-        for env, seed in zip(envs, seeds, strict=True):
-            model = method.make_model(env, seed)
+        for env, seed, source in zip(envs, seeds, sources, strict=True):
+            model = method.make_model(env, seed, protocol)
             if source is not None:
                 model.load_transitions(source, keep_rewards=False)
             records.append(run_online(model, env, n_online, seed))
             records[-1].source_set = source_set
         return records
-    lockstep = Lockstep(method.make_model(envs[0], seeds[0]), env_batch(envs), len(envs), source, n_online)
-    runs = lockstep.run(seeds)
+    runs = []
+    for group in groups:  # the runs of one source set, stepped together
+        group_envs = [envs[run] for run in group]
+        model = method.make_model(group_envs[0], seeds[group[0]], protocol)
+        lockstep = Lockstep(model, env_batch(group_envs), len(group), sources[group[0]], n_online)
+        runs += lockstep.run([seeds[run] for run in group])
     return _records(envs, runs, time.perf_counter() - start, source_set)
 
 
@@ -195,6 +228,7 @@ def multitask_batch(
     n_turns: int = 20,
     episode_steps: int = 50,
     source_set: int | None = None,
+    protocol: Protocol = AS_BUILT,
 ) -> list[RunRecord]:
     """
     Runs of the multi-task experiment (Figure 8, see ``multitask_run``) stepped in lockstep, one per seed.
@@ -204,12 +238,13 @@ def multitask_batch(
     :param n_turns: turns over the 25 tasks
     :param episode_steps: transitions per trajectory
     :param source_set: the batch's index, kept in the records
+    :param protocol: the choices the paper leaves open
     :return: one record per run, ``n_turns * 25 * episode_steps`` transitions each
     """
     start = time.perf_counter()
-    envs = [multitask_env(episode_steps) for _ in seeds]
+    envs = [multitask_env(episode_steps, protocol) for _ in seeds]
     lockstep = Lockstep(
-        method.make_model(envs[0], seeds[0]),
+        method.make_model(envs[0], seeds[0], protocol),
         env_batch(envs),
         len(envs),
         None,

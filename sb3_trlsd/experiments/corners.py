@@ -9,9 +9,9 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from sb3_trlsd.experiments.backends import LOKY, Backend
 from sb3_trlsd.experiments.batches import transfer_runs
 from sb3_trlsd.experiments.figures import write_transfer_figure
+from sb3_trlsd.experiments.reproduction import Reproduction
 from sb3_trlsd.experiments.runner import Method
 from sb3_trlsd_envs import CORNER_TASKS
 
@@ -24,18 +24,16 @@ METHODS = [
 ]
 
 
-def reproduce(
-    out: Path, runs: int | None, seed: int, workers: int, cache: Path | None = None, backend: Backend = LOKY
-) -> dict:
+def reproduce(out: Path, how: Reproduction) -> dict:
     """
     Curves of the corner tasks, one panel per update ratio.
 
-    :param cache: directory of finished runs, reused and completed (see ``run_jobs``); None: no cache
-    :param backend: where the runs go (see ``run_jobs``)
+    :param out: the output directory
+    :param how: runs, seed, workers, cache, backend and protocol
     """
     started = time.perf_counter()
-    runs = runs or DEFAULT_RUNS
-    records = transfer_runs(METHODS, CORNER_TASKS, runs, seed, workers, cache=cache, backend=backend)
+    runs = how.runs_or(DEFAULT_RUNS)
+    records = transfer_runs(METHODS, CORNER_TASKS, runs, how.seed, how.workers, **how.run_options())
     return write_transfer_figure(
         out,
         "fig6",
@@ -43,8 +41,8 @@ def reproduce(
         METHODS,
         records,
         [(0, 100), (0, 200), (0, 1000), (500, 1000)],
-        {"tasks": "the 4 corners in turn", "runs": runs},
-        seed,
+        {"tasks": "the 4 corners in turn", "runs": runs, **how.recorded()},
+        how.seed,
         started,
         panels=[
             ("update ratio 2", [m.label for m in METHODS[:2]]),

@@ -8,9 +8,9 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from sb3_trlsd.experiments.backends import LOKY, Backend
 from sb3_trlsd.experiments.batches import transfer_runs
 from sb3_trlsd.experiments.figures import write_transfer_figure
+from sb3_trlsd.experiments.reproduction import Reproduction
 from sb3_trlsd.experiments.runner import Method, transfer_run
 from sb3_trlsd_envs import N_TASKS
 
@@ -20,20 +20,18 @@ PICTURE_STEP = 30
 KNOWN = Method("known reward", reward_head="known", kappa=0.0)
 
 
-def reproduce(
-    out: Path, runs: int | None, seed: int, workers: int, cache: Path | None = None, backend: Backend = LOKY
-) -> dict:
+def reproduce(out: Path, how: Reproduction) -> dict:
     """
     Curves of the 25 tasks with the known reward, next to one trajectory as in the paper's Figure 1 (the
     trajectory's run, a short one, is not cached).
 
-    :param cache: directory of finished runs, reused and completed (see ``run_jobs``); None: no cache
-    :param backend: where the runs go (see ``run_jobs``)
+    :param out: the output directory
+    :param how: runs, seed, workers, cache, backend and protocol
     """
     started = time.perf_counter()
-    runs = runs or DEFAULT_RUNS
-    records = transfer_runs([KNOWN], range(N_TASKS), runs, seed, workers, cache=cache, backend=backend)
-    picture = transfer_run(KNOWN, PICTURE_TASK, seed, snapshot_at=[PICTURE_STEP]).snapshots[0]
+    runs = how.runs_or(DEFAULT_RUNS)
+    records = transfer_runs([KNOWN], range(N_TASKS), runs, how.seed, how.workers, **how.run_options())
+    picture = transfer_run(KNOWN, PICTURE_TASK, how.seed, snapshot_at=[PICTURE_STEP], protocol=how.protocol)
     return write_transfer_figure(
         out,
         "fig1",
@@ -41,8 +39,8 @@ def reproduce(
         [KNOWN],
         records,
         [(0, 100), (0, 1000), (500, 1000)],
-        {"tasks": "all 25 in turn", "runs": runs},
-        seed,
+        {"tasks": "all 25 in turn", "runs": runs, **how.recorded()},
+        how.seed,
         started,
-        picture=(picture, PICTURE_TASK, f"tau_15, first {PICTURE_STEP} transitions"),
+        picture=(picture.snapshots[0], PICTURE_TASK, f"tau_15, first {PICTURE_STEP} transitions"),
     )

@@ -13,7 +13,6 @@ from pathlib import Path
 
 import numpy as np
 
-from sb3_trlsd.experiments.backends import LOKY, Backend
 from sb3_trlsd.experiments.batches import batch_runs, multitask_batch
 from sb3_trlsd.experiments.figures import new_figure, save_figure, update_counts
 from sb3_trlsd.experiments.jobs import run_jobs
@@ -24,6 +23,7 @@ from sb3_trlsd.experiments.reporting import (
     write_curves_csv,
     write_json,
 )
+from sb3_trlsd.experiments.reproduction import Reproduction
 from sb3_trlsd.experiments.runner import Method
 from sb3_trlsd_envs import N_TASKS
 
@@ -105,31 +105,29 @@ def draw_figure(
     save_figure(figure, path, "Figure 8: multi-task learning of the 25 tasks, no source data")
 
 
-def reproduce(
-    out: Path, runs: int | None, seed: int, workers: int, cache: Path | None = None, backend: Backend = LOKY
-) -> dict:
+def reproduce(out: Path, how: Reproduction) -> dict:
     """
     Reward per episode of each method, and when each is near solved.
 
-    :param cache: directory of finished runs, reused and completed (see ``run_jobs``); None: no cache
-    :param backend: where the runs go (see ``run_jobs``)
+    :param out: the output directory
+    :param how: runs, seed, workers, cache, backend and protocol
     """
     started = time.perf_counter()
-    runs = runs or DEFAULT_RUNS
+    runs = how.runs_or(DEFAULT_RUNS)
     # Batches of runs stepped in lockstep; without a source, their runs share nothing and stay independent.
     batches = batch_runs(runs)
     jobs = [
-        ((method, tuple(seed + run for run in batch), TURNS, EPISODE_STEPS), {})
+        ((method, tuple(how.seed + run for run in batch), TURNS, EPISODE_STEPS), {"protocol": how.protocol})
         for method in METHODS
         for batch in batches
     ]
     batch_records = run_jobs(
         multitask_batch,
         jobs,
-        workers,
+        how.workers,
         description=f"{len(METHODS)} methods x {runs} runs, in batches",
-        cache=cache,
-        backend=backend,
+        cache=how.cache,
+        backend=how.backend,
     )
     records = [record for batch in batch_records for record in batch]
     episodes = {
@@ -165,8 +163,9 @@ def reproduce(
             "episode_steps": EPISODE_STEPS,
             "runs": runs,
             "methods": [m.parameters() for m in METHODS],
+            **how.recorded(),
         },
-        seed,
+        how.seed,
         time.perf_counter() - started,
         results=results,
         turn_rewards=turn_curves(turns),

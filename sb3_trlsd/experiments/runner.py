@@ -21,6 +21,7 @@ import gymnasium as gym
 import numpy as np
 
 from sb3_trlsd.data import collect_transitions
+from sb3_trlsd.experiments.protocols import AS_BUILT, Protocol
 from sb3_trlsd.trlsd import TRLSD
 from sb3_trlsd_envs import MAZE_ID, N_TASKS
 from sb3_trlsd_envs.dynamics import MAZE_SIZE
@@ -33,6 +34,7 @@ __all__ = [
     "multitask_env",
     "multitask_run",
     "run_online",
+    "target_env",
     "transfer_run",
 ]
 
@@ -72,8 +74,14 @@ class Method:
         """The method as a JSON-friendly dict."""
         return asdict(self)
 
-    def make_model(self, env: gym.Env, seed: int) -> TRLSD:
-        """A TRLSD model of this method on ``env``."""
+    def make_model(self, env: gym.Env, seed: int, protocol: Protocol = AS_BUILT) -> TRLSD:
+        """
+        A TRLSD model of this method on ``env``.
+
+        :param env: the env
+        :param seed: the model's seed
+        :param protocol: the choices the paper leaves open (gamma, first fit, the heads' edge cases)
+        """
         return TRLSD(
             self.policy,
             env,
@@ -83,6 +91,7 @@ class Method:
             similarity=self.similarity,
             update_ratio=self.update_ratio,
             seed=seed,
+            **protocol.model_kwargs(self.reward_head),
         )
 
 
@@ -203,6 +212,7 @@ def transfer_run(
     n_online: int | None = None,
     snapshot_at: Sequence[int] = (),
     env_kwargs: dict[str, Any] | None = None,
+    protocol: Protocol = AS_BUILT,
 ) -> RunRecord:
     """
     One run of the paper's transfer experiments (Figures 1-7): ``n_source`` random transitions, their
@@ -217,15 +227,17 @@ def transfer_run(
     :param n_source: random source transitions, ignored without transfer (None: ``SOURCE_TRANSITIONS``)
     :param n_online: online transitions (None: ``ONLINE_TRANSITIONS``)
     :param snapshot_at: steps after which to take pictures
-    :param env_kwargs: keyword arguments of the target task's env (e.g. ``reward_noise_std``), paper's
-        settings by default
+    :param env_kwargs: keyword arguments of the target task's env (e.g. ``reward_noise_std``), over the
+        protocol's; paper's settings by default
+    :param protocol: the choices the paper leaves open (its ``source_sets`` does not apply: a run alone has
+        a source set of its own)
     :return: the record
     """
     start = time.perf_counter()
     n_source = SOURCE_TRANSITIONS if n_source is None else n_source
     n_online = ONLINE_TRANSITIONS if n_online is None else n_online
-    env = gym.make(MAZE_ID, task=task, **(env_kwargs or {}))
-    model = method.make_model(env, seed)
+    env = target_env(task, protocol, env_kwargs)
+    model = method.make_model(env, seed, protocol)
     if method.transfer and n_source:
         source_env = gym.make(MAZE_ID, task=(task + 1 + seed) % 25)
         model.load_transitions(collect_transitions(source_env, n_source, seed=seed + 1), keep_rewards=False)
@@ -234,7 +246,9 @@ def transfer_run(
     return record
 
 
-def multitask_run(method: Method, seed: int, n_turns: int = 20, episode_steps: int = 50) -> RunRecord:
+def multitask_run(
+    method: Method, seed: int, n_turns: int = 20, episode_steps: int = 50, protocol: Protocol = AS_BUILT
+) -> RunRecord:
     """
     One run of the multi-task experiment (Figure 8): the 25 tasks in turn, one trajectory of
     ``episode_steps`` transitions per task per turn, no source data.
@@ -243,19 +257,35 @@ def multitask_run(method: Method, seed: int, n_turns: int = 20, episode_steps: i
     :param seed: the run's seed
     :param n_turns: turns over the 25 tasks
     :param episode_steps: transitions per trajectory
+    :param protocol: the choices the paper leaves open
     :return: the record, ``n_turns * 25 * episode_steps`` transitions
     """
-    env = multitask_env(episode_steps)
-    model = method.make_model(env, seed)
+    env = multitask_env(episode_steps, protocol)
+    model = method.make_model(env, seed, protocol)
     return run_online(model, env, n_turns * N_TASKS * episode_steps, seed)
 
 
-def multitask_env(episode_steps: int) -> gym.Env:
-    """The maze of Figure 8: the 25 tasks in turn, trajectories of ``episode_steps`` without restarts."""
+def target_env(task: int, protocol: Protocol = AS_BUILT, env_kwargs: dict[str, Any] | None = None) -> gym.Env:
+    """
+    The maze of a transfer run's online phase on ``task``.
+
+    :param task: the target task index 0..24
+    :param protocol: the choices the paper leaves open (its online restarts)
+    :param env_kwargs: further keyword arguments of the maze, over the protocol's
+    """
+    return gym.make(MAZE_ID, task=task, **(protocol.target_env_kwargs() | (env_kwargs or {})))
+
+
+def multitask_env(episode_steps: int, protocol: Protocol = AS_BUILT) -> gym.Env:
+    """
+    The maze of Figure 8: the 25 tasks in turn, trajectories of ``episode_steps`` without restarts, each
+    starting where the protocol's ``multitask_start`` says.
+    """
     return gym.make(
         MAZE_ID,
         tasks="all",
         task_schedule="round_robin",
         termination_prob=0.0,
         max_episode_steps=episode_steps,
+        **protocol.multitask_env_kwargs(),
     )

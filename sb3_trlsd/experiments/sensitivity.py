@@ -11,7 +11,6 @@ from pathlib import Path
 
 import numpy as np
 
-from sb3_trlsd.experiments.backends import LOKY, Backend
 from sb3_trlsd.experiments.batches import transfer_runs
 from sb3_trlsd.experiments.figures import new_figure, save_figure, update_counts
 from sb3_trlsd.experiments.reporting import (
@@ -21,6 +20,7 @@ from sb3_trlsd.experiments.reporting import (
     write_curves_csv,
     write_json,
 )
+from sb3_trlsd.experiments.reproduction import Reproduction
 from sb3_trlsd.experiments.runner import Method
 from sb3_trlsd_envs import N_TASKS
 
@@ -30,23 +30,21 @@ SIGMAS = (0.05, 0.1, 0.2, 0.5, 1.0)
 WINDOWS = [(0, 100), (0, 200), (0, 500), (0, 1000), (500, 1000)]
 
 
-def reproduce(
-    out: Path, runs: int | None, seed: int, workers: int, cache: Path | None = None, backend: Backend = LOKY
-) -> dict:
+def reproduce(out: Path, how: Reproduction) -> dict:
     """
     Window averages against kappa and against sigma, with standard-error bars.
 
-    :param cache: directory of finished runs, reused and completed (see ``run_jobs``); None: no cache
-    :param backend: where the runs go (see ``run_jobs``)
+    :param out: the output directory
+    :param how: runs, seed, workers, cache, backend and protocol
     """
     started = time.perf_counter()
-    runs = runs or DEFAULT_RUNS
+    runs = how.runs_or(DEFAULT_RUNS)
     sweeps = {
         "kappa": [Method(f"kappa={kappa:g}", kappa=kappa) for kappa in KAPPAS],
         "sigma": [Method(f"sigma={sigma:g}", sigma=sigma) for sigma in SIGMAS if sigma != 0.2],
     }
     methods = sweeps["kappa"] + sweeps["sigma"]
-    records = transfer_runs(methods, range(N_TASKS), runs, seed, workers, cache=cache, backend=backend)
+    records = transfer_runs(methods, range(N_TASKS), runs, how.seed, how.workers, **how.run_options())
     # kappa = 0.1, sigma = 0.2 is the same method in both sweeps: run once, shown in both.
     records["sigma=0.2"] = records["kappa=0.1"]
     curves = {label: np.stack([record.rewards for record in runs]) for label, runs in records.items()}
@@ -77,8 +75,14 @@ def reproduce(
     }
     data = summary(
         "fig7",
-        {"kappas": KAPPAS, "sigmas": SIGMAS, "runs": runs, "methods": [m.parameters() for m in methods]},
-        seed,
+        {
+            "kappas": KAPPAS,
+            "sigmas": SIGMAS,
+            "runs": runs,
+            "methods": [m.parameters() for m in methods],
+            **how.recorded(),
+        },
+        how.seed,
         time.perf_counter() - started,
         results=results,
     )

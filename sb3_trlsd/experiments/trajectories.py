@@ -18,9 +18,9 @@ from pathlib import Path
 
 import numpy as np
 
-from sb3_trlsd.experiments.backends import LOKY, Backend
 from sb3_trlsd.experiments.figures import draw_snapshot, new_figure, save_figure
 from sb3_trlsd.experiments.reporting import summary, write_curves_csv, write_json
+from sb3_trlsd.experiments.reproduction import Reproduction
 from sb3_trlsd.experiments.runner import Method, transfer_run
 
 TASK = 4  # tau_15, a corner (Figure 4's prior allows only corners)
@@ -31,10 +31,12 @@ SETTINGS = {  # name: (title, method, snapshot steps)
 }
 
 
-def _reproduce(name: str, out: Path, seed: int) -> dict:
+def _reproduce(name: str, out: Path, how: Reproduction) -> dict:
     started = time.perf_counter()
     title, method, steps = SETTINGS[name]
-    record = transfer_run(method, TASK, seed, n_online=max(steps), snapshot_at=steps)
+    record = transfer_run(
+        method, TASK, how.seed, n_online=max(steps), snapshot_at=steps, protocol=how.protocol
+    )
     figure, axes = new_figure(len(steps), width=4.2, height=4.5)
     for ax, snapshot in zip(axes, record.snapshots, strict=True):
         draw_snapshot(ax, snapshot, TASK, f"after {snapshot.step} transitions")
@@ -42,8 +44,8 @@ def _reproduce(name: str, out: Path, seed: int) -> dict:
     write_curves_csv(out / f"{name}.csv", "transition", {method.label: record.rewards[None]})
     data = summary(
         name,
-        {"method": method.parameters(), "task": "tau_15", "snapshots_after": list(steps)},
-        seed,
+        {"method": method.parameters(), "task": "tau_15", "snapshots_after": list(steps), **how.recorded()},
+        how.seed,
         time.perf_counter() - started,
         results={
             "policy_updates": record.policy_updates,
@@ -59,22 +61,16 @@ def _interval_rewards(rewards: np.ndarray, steps: Sequence[int]) -> dict[str, fl
     return {f"[{a}, {b})": float(rewards[a:b].mean()) for a, b in itertools.pairwise(bounds)}
 
 
-def reproduce_fig2(
-    out: Path, runs: int | None, seed: int, workers: int, cache: Path | None = None, backend: Backend = LOKY
-) -> dict:
-    """Figure 2 (one short run: ``runs``, ``workers``, ``cache`` and ``backend`` do not apply)."""
-    return _reproduce("fig2", out, seed)
+def reproduce_fig2(out: Path, how: Reproduction) -> dict:
+    """Figure 2 (one short run: the runs, workers, cache and backend of ``how`` do not apply)."""
+    return _reproduce("fig2", out, how)
 
 
-def reproduce_fig3(
-    out: Path, runs: int | None, seed: int, workers: int, cache: Path | None = None, backend: Backend = LOKY
-) -> dict:
-    """Figure 3 (one short run: ``runs``, ``workers``, ``cache`` and ``backend`` do not apply)."""
-    return _reproduce("fig3", out, seed)
+def reproduce_fig3(out: Path, how: Reproduction) -> dict:
+    """Figure 3 (one short run: the runs, workers, cache and backend of ``how`` do not apply)."""
+    return _reproduce("fig3", out, how)
 
 
-def reproduce_fig4(
-    out: Path, runs: int | None, seed: int, workers: int, cache: Path | None = None, backend: Backend = LOKY
-) -> dict:
-    """Figure 4 (one short run: ``runs``, ``workers``, ``cache`` and ``backend`` do not apply)."""
-    return _reproduce("fig4", out, seed)
+def reproduce_fig4(out: Path, how: Reproduction) -> dict:
+    """Figure 4 (one short run: the runs, workers, cache and backend of ``how`` do not apply)."""
+    return _reproduce("fig4", out, how)

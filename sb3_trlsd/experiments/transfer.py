@@ -9,9 +9,9 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from sb3_trlsd.experiments.backends import LOKY, Backend
 from sb3_trlsd.experiments.batches import transfer_runs
 from sb3_trlsd.experiments.figures import write_transfer_figure
+from sb3_trlsd.experiments.reproduction import Reproduction
 from sb3_trlsd.experiments.runner import Method
 from sb3_trlsd_envs import N_TASKS
 
@@ -27,25 +27,17 @@ METHODS = [
 WINDOWS = [(0, 100), (0, 1000), (500, 1000)]
 
 
-def reproduce(
-    out: Path,
-    runs: int | None,
-    seed: int,
-    workers: int,
-    methods: list[Method] = METHODS,
-    cache: Path | None = None,
-    backend: Backend = LOKY,
-) -> dict:
+def reproduce(out: Path, how: Reproduction, methods: list[Method] = METHODS) -> dict:
     """
     Curves of every method over the 25 tasks, in two panels: update ratio 2, and 1.2.
 
+    :param out: the output directory
+    :param how: runs, seed, workers, cache, backend and protocol
     :param methods: the curves (the paper's by default)
-    :param cache: directory of finished runs, reused and completed (see ``run_jobs``); None: no cache
-    :param backend: where the runs go (see ``run_jobs``)
     """
     started = time.perf_counter()
-    runs = runs or DEFAULT_RUNS
-    records = transfer_runs(methods, range(N_TASKS), runs, seed, workers, cache=cache, backend=backend)
+    runs = how.runs_or(DEFAULT_RUNS)
+    records = transfer_runs(methods, range(N_TASKS), runs, how.seed, how.workers, **how.run_options())
     ratio_2 = [m.label for m in methods if m.update_ratio == 2.0]
     ratio_12 = [m.label for m in methods if m.update_ratio != 2.0]
     return write_transfer_figure(
@@ -55,8 +47,8 @@ def reproduce(
         methods,
         records,
         WINDOWS,
-        {"tasks": "all 25 in turn", "runs": runs},
-        seed,
+        {"tasks": "all 25 in turn", "runs": runs, **how.recorded()},
+        how.seed,
         started,
         panels=[("update ratio 2", ratio_2), ("update ratio 1.2", ratio_12)] if ratio_12 else None,
     )
