@@ -37,7 +37,7 @@ class Reproduction:
         return self.runs or default
 
     def run_options(self) -> dict[str, Any]:
-        """The keyword arguments of ``transfer_runs`` (and ``run_jobs``) besides the runs themselves."""
+        """The keyword arguments of ``transfer_runs`` beyond its runs: cache, backend and protocol."""
         return {"cache": self.cache, "backend": self.backend, "protocol": self.protocol}
 
     def recorded(self) -> dict[str, Any]:
