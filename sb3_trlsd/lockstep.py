@@ -22,7 +22,7 @@ from typing import Protocol
 import numpy as np
 
 from sb3_trlsd.buffers import BufferCursor, SharedDynamicsReplayBuffer
-from sb3_trlsd.builders import new_reward_head
+from sb3_trlsd.builders import new_task_learner
 from sb3_trlsd.data import Transitions
 from sb3_trlsd.fit_rows import LinearFitRows
 from sb3_trlsd.fqi import fit_linear_fqi_runs
@@ -144,7 +144,7 @@ class Lockstep:
         """The learning state of ``task`` in ``run``, created (no samples) the first time it is asked for."""
         learners = self.runs[run].learners
         if task not in learners:
-            learners[task] = TaskLearner(task, new_reward_head(self.model, task), self.model.update_ratio)
+            learners[task] = new_task_learner(self.model, task)
         return learners[task]
 
     def refit(self, pairs: Sequence[tuple[int, int]]) -> None:
@@ -215,8 +215,10 @@ class Lockstep:
             for _ in range(n_runs)
         ]
         for step in range(self.n_steps):
-            # A task's Q is fitted at its first step, before its run acts on it.
-            first_fits = [(r, int(t)) for r, t in enumerate(tasks) if not self.learner(r, int(t)).fitted]
+            # A task's Q is fitted at its first step, before its run acts on it (unless first_fit waits).
+            first_fits = [
+                (r, int(t)) for r, t in enumerate(tasks) if self.learner(r, int(t)).fit_before_acting
+            ]
             self._refit_and_record(first_fits, records, step)
             actions = self.greedy_actions(states, tasks)
             next_states, rewards, terminated, truncated = self.envs.step(actions)

@@ -34,8 +34,6 @@ from sb3_trlsd_envs import MAZE_ID, SharedDynamicsMaze
 CONTINUOUS, DISCRETE = Method("continuous"), Method("discrete", reward_head="tabular")
 TASKS, SEEDS = (3, 12, 21), (40, 41, 42)
 N_SOURCE, N_ONLINE = 300, 60
-LOCKSTEP_EDIT = "needs Lockstep to build its learners with new_task_learner and to fit on fit_before_acting"
-RIDGE_EDIT = "needs RidgeRewardHead and KernelSumTracker to take log|Xi| from head.log_count"
 
 
 def preset(name: str) -> Protocol:
@@ -323,11 +321,7 @@ SAME_LOG_COUNT = [("log-count-plus-one", 1, 1.0), ("log-count-at-least-one", 3, 
 def log_count_cases():
     for method in (DISCRETE, CONTINUOUS):
         for name, n_samples, ratio in LOG_COUNT_CASES + SAME_LOG_COUNT:
-            pending = method is CONTINUOUS and ratio != 1.0
-            marks = [pytest.mark.xfail(strict=True, reason=RIDGE_EDIT)] if pending else []
-            yield pytest.param(
-                method, name, n_samples, ratio, marks=marks, id=f"{method.label}-{name}-{n_samples}"
-            )
+            yield pytest.param(method, name, n_samples, ratio, id=f"{method.label}-{name}-{n_samples}")
 
 
 @pytest.mark.parametrize(("method", "name", "n_samples", "ratio"), log_count_cases())
@@ -365,7 +359,6 @@ def test_the_first_fit_comes_after_the_first_sample_under_that_preset(recwarn):
     assert not [warning for warning in recwarn if "never been fitted" in str(warning.message)]
 
 
-@pytest.mark.xfail(strict=True, reason=LOCKSTEP_EDIT)
 def test_a_batch_fits_a_task_after_its_first_sample_under_that_preset():
     envs = [gym.make(MAZE_ID, task=task) for task in TASKS]
     model = CONTINUOUS.make_model(envs[0], SEEDS[0], preset("first-fit-after-sample"))

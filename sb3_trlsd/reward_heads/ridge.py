@@ -14,7 +14,6 @@ from sb3_trlsd.reward_heads.base import (
     RewardTracker,
     check_positive,
     confidence_width,
-    log_sample_count,
 )
 
 __all__ = ["SIMILARITIES", "KernelSumTracker", "RidgeRewardHead"]
@@ -156,7 +155,7 @@ class RidgeRewardHead(RewardHead):
         """
         n = self.n_samples if n_samples is None else n_samples
         weights = self.kernel_sums(self.similarity_points(states), 0, n)
-        return confidence_width(log_sample_count(n), weights, self.w_floor)  # eq. 9 / kappa
+        return confidence_width(self.log_count(n), weights, self.w_floor)  # eq. 9 / kappa
 
     def snapshot(self) -> int:
         # Samples are only ever appended, so the first n samples are the head as of now.
@@ -176,8 +175,8 @@ class RidgeRewardHead(RewardHead):
             then = similarity[:, :snapshot].sum(axis=1)
             now = then + similarity[:, snapshot:].sum(axis=1)
         return (
-            confidence_width(log_sample_count(snapshot), then, self.w_floor),
-            confidence_width(log_sample_count(self.n_samples), now, self.w_floor),
+            confidence_width(self.log_count(snapshot), then, self.w_floor),
+            confidence_width(self.log_count(self.n_samples), now, self.w_floor),
         )  # eq. 9 / kappa
 
     def tracker(self, states: np.ndarray) -> KernelSumTracker:
@@ -233,5 +232,5 @@ class KernelSumTracker(RewardTracker):
         self._fold_new_samples()
         weights = self._kernel_sums.view()[:, 0]
         return self.head.kappa * confidence_width(
-            log_sample_count(self.head.n_samples), weights, self.head.w_floor
+            self.head.log_count(self.head.n_samples), weights, self.head.w_floor
         )  # eq. 9
