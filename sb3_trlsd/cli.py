@@ -257,6 +257,28 @@ def add_cache_options(command: argparse.ArgumentParser) -> None:
     run_cache.add_argument("--no-cache", action="store_true", help="keep no finished runs and reuse none")
 
 
+def claims_command(args: argparse.Namespace) -> int:
+    """
+    Print (and with ``--out``, write) the table of the paper's claims checked on each directory's figures.
+
+    :return: 0, or 2 when a directory holds no figure
+    """
+    from sb3_trlsd.experiments.claims import claims_table, load_figures
+
+    columns = []
+    for directory in args.directories:
+        name, figures = load_figures(Path(directory))
+        if not figures:
+            print(f"sb3-trlsd claims: error: no figN.json in {directory}", file=sys.stderr)
+            return 2
+        columns.append((name, figures))
+    table = claims_table(columns)
+    print(table)
+    if args.out:
+        Path(args.out).write_text(table + "\n")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="sb3-trlsd",
@@ -316,6 +338,17 @@ def build_parser() -> argparse.ArgumentParser:
     )
     add_cache_options(reproduce)
     reproduce.set_defaults(run=reproduce_command)
+
+    claims = commands.add_parser(
+        "claims",
+        help="the paper's claims checked on reproduced figures, one column per directory (protocol)",
+        description="Each directory holds figN.json files written by 'sb3-trlsd reproduce' under one "
+        "protocol; a claim comparing two methods holds when their difference is more than 2 standard "
+        "errors of the difference (a claim of likeness: less).",
+    )
+    claims.add_argument("directories", nargs="+", help="directories of figN.json (one column each)")
+    claims.add_argument("--out", default=None, help="also write the Markdown table to this file")
+    claims.set_defaults(run=claims_command)
 
     benchmark = commands.add_parser(
         "benchmark",
