@@ -141,6 +141,9 @@ def drive_alone(
         Method("features similarity", similarity="features"),
         Method("known", reward_head="known"),
         Method("no transfer", transfer=False),
+        Method("ridge posterior", reward_head="ridge_posterior", kappa=0.3),
+        Method("thompson", reward_head="thompson", kappa=0.3),  # each run draws from its own seed
+        Method("bernstein", reward_head="bernstein", kappa=0.03, reward_head_kwargs={"reward_range": 0.5}),
     ],
     ids=lambda method: method.label,
 )
