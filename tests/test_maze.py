@@ -72,18 +72,19 @@ def test_vectorised_random_transitions_have_the_same_statistics_as_stepping():
     assert data["rewards"][target].mean() == pytest.approx(1.0, abs=5 / np.sqrt(target.sum()))
 
 
+def rows_by_cell(states):
+    """((i, j), the rows of ``states`` in cell (i, j)) for the 25 cells."""
+    cells = cell_of(states)
+    return [((i, j), (cells[:, 0] == i) & (cells[:, 1] == j)) for i in range(1, 6) for j in range(1, 6)]
+
+
 def test_expected_reward_agrees_with_sampled_means_per_cell():
     """expected_reward is the mean of the sampled rewards in every cell (5 standard errors)."""
     env = SharedDynamicsMaze(task=(4, 2))
     data = env.random_transitions(60_000, seed=3)
-    cells = cell_of(data["states"])
     expected = env.expected_reward(data["states"])
-    for i in range(1, 6):
-        for j in range(1, 6):
-            rows = (cells[:, 0] == i) & (cells[:, 1] == j)
-            assert data["rewards"][rows].mean() == pytest.approx(
-                expected[rows][0], abs=5 / np.sqrt(rows.sum())
-            )
+    for _, rows in rows_by_cell(data["states"]):
+        assert data["rewards"][rows].mean() == pytest.approx(expected[rows][0], abs=5 / np.sqrt(rows.sum()))
 
 
 def test_noise_by_cell_has_each_cell_s_standard_deviation_around_eq_12_s_mean():
@@ -94,16 +95,13 @@ def test_noise_by_cell_has_each_cell_s_standard_deviation_around_eq_12_s_mean():
     """
     env = SharedDynamicsMaze(task=(2, 3), reward_noise_std=CELL_NOISE_STDS)
     data = env.random_transitions(100_000, seed=4)
-    cells = cell_of(data["states"])
     expected = env.expected_reward(data["states"])
-    for i in range(1, 6):
-        for j in range(1, 6):
-            rows = (cells[:, 0] == i) & (cells[:, 1] == j)
-            std = CELL_NOISE_STDS[i - 1][j - 1]
-            assert std == (0.1 if (i + j) % 2 == 0 else 1.44)
-            noise = data["rewards"][rows] - expected[rows]
-            assert noise.mean() == pytest.approx(0.0, abs=5 * std / np.sqrt(rows.sum()))
-            assert noise.std() == pytest.approx(std, abs=5 * std / np.sqrt(2 * rows.sum()))
+    for (i, j), rows in rows_by_cell(data["states"]):
+        std = CELL_NOISE_STDS[i - 1][j - 1]
+        assert std == (0.1 if (i + j) % 2 == 0 else 1.44)
+        noise = data["rewards"][rows] - expected[rows]
+        assert noise.mean() == pytest.approx(0.0, abs=5 * std / np.sqrt(rows.sum()))
+        assert noise.std() == pytest.approx(std, abs=5 * std / np.sqrt(2 * rows.sum()))
     assert np.mean(np.square(CELL_NOISE_STDS)) == pytest.approx(1.0, abs=1e-3)  # the paper's on average
 
 
