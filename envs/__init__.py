@@ -32,6 +32,7 @@ from sb3_trlsd_envs.goal_cartpole import (
     target_rewards,
 )
 from sb3_trlsd_envs.maze import (
+    CELL_NOISE_STDS,
     CORNER_TASKS,
     N_TASKS,
     SharedDynamicsMaze,
@@ -43,6 +44,7 @@ from sb3_trlsd_envs.rendering import draw_maze, render_maze, save_maze_png
 
 __all__ = [
     "CARTPOLE_TARGETS",
+    "CELL_NOISE_STDS",
     "CORNER_TASKS",
     "DEFAULT_WALLS",
     "EAST",

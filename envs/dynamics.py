@@ -30,11 +30,13 @@ __all__ = [
     "NORTH",
     "SOUTH",
     "WEST",
+    "cell_noise_stds",
     "cell_of",
     "cell_task",
     "first_wall_hits",
     "make_walls",
     "maze_step",
+    "reward_noise_scales",
     "segment_crosses_walls",
 ]
 
@@ -235,3 +237,42 @@ def cell_task(cells: np.ndarray) -> np.ndarray:
     :return: (n,) task indices
     """
     return MAZE_SIZE * (cells[:, 0] - 1) + (cells[:, 1] - 1)
+
+
+def cell_noise_stds(reward_noise_std: float | Sequence[Sequence[float]] | np.ndarray) -> np.ndarray:
+    """
+    The standard deviation of the reward noise in each cell: one number for all of them (eq. 12), or a table
+    with one per cell.
+
+    :param reward_noise_std: a number >= 0, or a 5 x 5 table of them indexed ``[i - 1][j - 1]`` (cell
+        ``(i, j)``, ``i = ceil(x)``, ``j = ceil(y)``: a row per column x of the maze)
+    :return: (5, 5) float64, indexed ``[i - 1, j - 1]``
+    :raises ValueError: naming ``reward_noise_std`` for anything else (negative, NaN or another shape)
+    """
+    try:
+        stds = np.asarray(reward_noise_std, dtype=np.float64)
+    except (TypeError, ValueError) as error:
+        raise ValueError(
+            f"reward_noise_std must be a number >= 0 or a {MAZE_SIZE} x {MAZE_SIZE} table of them, "
+            f"got {reward_noise_std!r}"
+        ) from error
+    valid = np.all(stds >= 0) and np.all(np.isfinite(stds))
+    if stds.shape not in ((), (MAZE_SIZE, MAZE_SIZE)) or not valid:
+        raise ValueError(
+            f"reward_noise_std must be a finite number >= 0 or a {MAZE_SIZE} x {MAZE_SIZE} table of them "
+            f"(one per cell, [i - 1][j - 1]), got {reward_noise_std!r}"
+        )
+    return np.broadcast_to(stds, (MAZE_SIZE, MAZE_SIZE)).copy()
+
+
+def reward_noise_scales(states: np.ndarray, stds: np.ndarray) -> np.ndarray:
+    """
+    The standard deviation of the reward noise at each state: that of its cell (eq. 12 reads cells as
+    ``cell_of``).
+
+    :param states: (n, 2) states
+    :param stds: (5, 5) from ``cell_noise_stds``
+    :return: (n,)
+    """
+    cells = cell_of(states)
+    return stds[cells[:, 0] - 1, cells[:, 1] - 1]

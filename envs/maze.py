@@ -16,15 +16,18 @@ from sb3_trlsd_envs.dynamics import (
     NORTH,
     SOUTH,
     WEST,
+    cell_noise_stds,
     cell_of,
     cell_task,
     make_walls,
     maze_step,
+    reward_noise_scales,
 )
 from sb3_trlsd_envs.maze_runs import step_mazes
 from sb3_trlsd_envs.multitask import trajectory_lengths, warn_no_render_mode
 
 __all__ = [
+    "CELL_NOISE_STDS",
     "CORNER_TASKS",
     "EAST",
     "NORTH",
@@ -45,6 +48,16 @@ TASK_SCHEDULES = ("fixed", "round_robin", "random")
 START_RULES = ("uniform", "continue")  # or a fixed start state (x, y)
 Task = int | tuple[int, int]
 Start = str | tuple[float, float]
+# The maze variant whose reward noise differs by cell (``reward_noise_std=CELL_NOISE_STDS``), for the heads
+# that weigh how much neighbours agree (``BernsteinRewardHead``): a checkerboard of quiet cells (standard
+# deviation 0.1, the 13 cells with i + j even, the corners among them) and loud ones (1.44, the 12 others),
+# whose mean variance over the 25 cells is the paper's 1 (13 x 0.1^2 + 12 x 1.44^2 = 25.01): the same noise on
+# average, spread unevenly. Every task has quiet and loud cells next to its own; 12 tasks' own cell is loud.
+QUIET_STD, LOUD_STD = 0.1, 1.44
+CELL_NOISE_STDS = tuple(
+    tuple(QUIET_STD if (i + j) % 2 == 0 else LOUD_STD for j in range(1, MAZE_SIZE + 1))
+    for i in range(1, MAZE_SIZE + 1)
+)
 
 
 def task_index(task: Task) -> int:
@@ -147,7 +160,10 @@ class SharedDynamicsMaze(gym.Env):
     ## Rewards
     Task tau_ij (eq. 12) draws the reward of a transition for the state s_t it starts from:
     `1 + N(0, reward_noise_std)` if `i = ceil(x_t)` and `j = ceil(y_t)`, `N(0, reward_noise_std)` elsewhere.
-    `expected_reward(states, task)` gives the noise-free expectation.
+    With a table of standard deviations, one per cell (`reward_noise_std=CELL_NOISE_STDS`, a checkerboard
+    of 0.1 and 1.44), the noise of s_t's cell is drawn: the same draw N(0, 1) from `np_random`, scaled by
+    that cell's standard deviation, so a maze with a table makes the same moves as one without, seed for
+    seed. `expected_reward(states, task)` gives the noise-free expectation.
 
     ## Episode End
     After each step the trajectory ends with probability `termination_prob` (0.02). This is a reset, not an
@@ -165,14 +181,16 @@ class SharedDynamicsMaze(gym.Env):
     - `termination_prob`: probability that a step ends the trajectory (default 0.02, as in the paper).
     - `start`: `"uniform"` (default), `"continue"` or a fixed state `(x, y)` in the open square (see
       Starting State); `random_transitions` takes uniform or fixed starts.
-    - `reward_noise_std`: standard deviation of the reward noise (default 1.0, eq. 12).
+    - `reward_noise_std`: standard deviation of the reward noise (default 1.0, eq. 12), or a 5 x 5 table of
+      them, one per cell `(i, j)` at `[i - 1][j - 1]` (e.g. `CELL_NOISE_STDS`).
     - `along_noise_std`, `across_noise_std`: standard deviations of the move noise along the action's
       axis and across it (defaults 0.5 and 0.25).
     - `render_mode`: `"rgb_array"`: walls in black, the target cell in green, the trajectory since the
       last reset as a blue broken line.
 
     ## Version History
-    - v0: initial version.
+    - v0: initial version; `reward_noise_std` may be a table of one standard deviation per cell (the default
+      is unchanged).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 4}
@@ -184,7 +202,7 @@ class SharedDynamicsMaze(gym.Env):
         task_schedule: str = "fixed",
         walls: Iterable = DEFAULT_WALLS,
         termination_prob: float = 0.02,
-        reward_noise_std: float = 1.0,
+        reward_noise_std: float | Sequence[Sequence[float]] = 1.0,
         along_noise_std: float = 0.5,
         across_noise_std: float = 0.25,
         start: Start = "uniform",
@@ -199,8 +217,8 @@ class SharedDynamicsMaze(gym.Env):
             raise ValueError(f"task_schedule must be one of {TASK_SCHEDULES}, got {task_schedule!r}")
         if not 0.0 <= termination_prob <= 1.0:
             raise ValueError(f"termination_prob must be a probability in [0, 1], got {termination_prob}")
+        self.reward_noise_stds = cell_noise_stds(reward_noise_std)  # (5, 5), [i - 1, j - 1]
         for name, value in (
-            ("reward_noise_std", reward_noise_std),
             ("along_noise_std", along_noise_std),
             ("across_noise_std", across_noise_std),
         ):
@@ -284,7 +302,8 @@ class SharedDynamicsMaze(gym.Env):
             out["next_states"][rows] = states
         cells = cell_of(out["states"])
         target = cell_task(cells) == out["tasks"]
-        out["rewards"] = target + self.reward_noise_std * rng.normal(size=n_transitions)
+        noise = reward_noise_scales(out["states"], self.reward_noise_stds) * rng.normal(size=n_transitions)
+        out["rewards"] = target + noise
         last = offsets + cut_lengths - 1
         out["truncations"] = np.zeros(n_transitions, dtype=bool)
         # A trajectory cut at n_transitions was not reset.

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from sb3_trlsd_envs.dynamics import cell_of, cell_task, maze_step
+from sb3_trlsd_envs.dynamics import cell_of, cell_task, maze_step, reward_noise_scales
 
 if TYPE_CHECKING:
     from sb3_trlsd_envs.maze import SharedDynamicsMaze
@@ -39,7 +39,7 @@ def _dynamics_settings(maze: SharedDynamicsMaze) -> tuple:
         maze.walls.tobytes(),
         maze.along_noise_std,
         maze.across_noise_std,
-        maze.reward_noise_std,
+        maze.reward_noise_stds.tobytes(),
         maze.termination_prob,
     )
 
@@ -58,9 +58,10 @@ def step_mazes(mazes: Sequence[SharedDynamicsMaze], actions: np.ndarray) -> Maze
         raise ValueError("step_mazes steps mazes of one dynamics: the same walls, noises and termination")
     generators = [maze.np_random for maze in mazes]
     states = np.array([maze.state for maze in mazes], dtype=np.float64).reshape(len(mazes), 2)
-    # E[R_tau(s_t)] (eq. 12) of each maze's task, and its noise: the first draw of a step.
+    # E[R_tau(s_t)] (eq. 12) of each maze's task, and its noise (of s_t's cell): the first draw of a step.
     expected = (cell_task(cell_of(states)) == np.array([maze.task for maze in mazes])).astype(np.float64)
-    rewards = expected + first.reward_noise_std * np.array([g.normal() for g in generators])
+    noise = np.array([g.normal() for g in generators])
+    rewards = expected + reward_noise_scales(states, first.reward_noise_stds) * noise
     next_states = maze_step(
         states, np.asarray(actions), generators, first.walls, first.along_noise_std, first.across_noise_std
     )

@@ -21,6 +21,8 @@ from sb3_trlsd.reward_heads import RewardFn, RewardHead, make_reward_head
 from sb3_trlsd.task_learner import TaskLearner
 
 __all__ = [
+    "FEATURE_HEAD_NAMES",
+    "head_seed",
     "known_reward_fn",
     "new_reward_head",
     "new_task_learner",
@@ -30,6 +32,10 @@ __all__ = [
 ]
 
 FEATURES_SIMILARITY_SIGMA = 0.2  # eq. 7 compares feature vectors, whose scale is the features' own
+# The named heads that regress the reward on Phi, and so need the shared feature map (and hold a Gram matrix).
+FEATURE_HEAD_NAMES = ("ridge", "ridge_posterior", "thompson")
+# The named heads whose similarity is eq. 6 on states or eq. 7 on features, of width ``sigma``.
+SIMILARITY_HEAD_NAMES = ("ridge", "bernstein")
 
 
 def state_box(model: Any) -> tuple[np.ndarray, np.ndarray]:
@@ -73,9 +79,9 @@ def state_box(model: Any) -> tuple[np.ndarray, np.ndarray]:
 
 def similarity_width(model: Any, low: np.ndarray, high: np.ndarray) -> float | np.ndarray:
     """
-    The width of the ridge head's similarity in the units it compares: for eq. 6 (``"state"``) ``sigma``
-    (default ``default_kernel_width(d)``, 0.04 in 2-D) times the box's size per dimension; for eq. 7
-    (``"features"``) ``sigma`` as given (default 0.2).
+    The width of the similarity of the ridge (and Bernstein) heads in the units it compares: for eq. 6
+    (``"state"``) ``sigma`` (default ``default_kernel_width(d)``, 0.04 in 2-D) times the box's size per
+    dimension; for eq. 7 (``"features"``) ``sigma`` as given (default 0.2).
     """
     if model.similarity == "features":
         return FEATURES_SIMILARITY_SIGMA if model.sigma is None else float(model.sigma)
@@ -88,11 +94,13 @@ def similarity_width(model: Any, low: np.ndarray, high: np.ndarray) -> float | n
 def shared_features(model: Any) -> FeatureMap | None:
     """
     The feature map Phi of ``model``, built once over its state box and shared by the linear policy and the
-    ridge heads (None when neither uses features): its own ``feature_map`` instance, or one by name.
+    heads of ``FEATURE_HEAD_NAMES`` (None when neither uses features): its own ``feature_map`` instance, or
+    one by name.
 
     :param model: a ``TRLSD`` model with its spaces
     """
-    if not (issubclass(model.policy_class, LinearPolicy) or model.reward_head == "ridge"):
+    uses_features = model.reward_head in FEATURE_HEAD_NAMES
+    if not (issubclass(model.policy_class, LinearPolicy) or uses_features):
         return None
     if isinstance(model.feature_map, FeatureMap):
         return model.feature_map
@@ -107,7 +115,7 @@ def shared_features(model: Any) -> FeatureMap | None:
         fourier_features=model.fourier_features,
         seed=0 if model.seed is None else model.seed,
         n_actions=int(model.action_space.n),
-        n_tasks=task_count_of(model.observation_space) if model.reward_head == "ridge" else 0,
+        n_tasks=task_count_of(model.observation_space) if uses_features else 0,
     )
 
 
@@ -144,21 +152,39 @@ def known_reward_fn(model: Any, required: bool = True) -> RewardFn | None:
     return None
 
 
-def new_reward_head(model: Any, task: int) -> RewardHead:
+def head_seed(seed: int | None, task: int) -> int | None:
+    """
+    The seed of a named ``"thompson"`` head's draws: one per run and task, derived from the run's seed so that
+    every task of every run draws its own normals, reproducibly (None, fresh entropy, without a seed).
+
+    :param seed: the run's seed (a model's ``seed``)
+    :param task: the task
+    :return: an integer >= 0, or None
+    """
+    if seed is None:
+        return None
+    return int(np.random.SeedSequence([int(seed) % 2**64, int(task), 3]).generate_state(1)[0])
+
+
+def new_reward_head(model: Any, task: int, seed: int | None = None) -> RewardHead:
     """
     A reward head for ``task`` with no samples, as the model's settings say: a copy of the model's
-    ``RewardHead`` instance, or the named head with kappa, sigma, the shared features and the head kwargs.
+    ``RewardHead`` instance, or the named head with kappa, the shared features, the similarity's width (the
+    heads of ``SIMILARITY_HEAD_NAMES``) and the head kwargs; a ``"thompson"`` head draws from ``head_seed``
+    unless the head kwargs give its ``seed``.
 
     :param model: the model
     :param task: the task
+    :param seed: the run's seed, that of a ``"thompson"`` head's draws (None: the model's ``seed``)
     :return: the head
     """
     if isinstance(model.reward_head, RewardHead):
         return copy.deepcopy(model.reward_head)
+    kwargs = dict(model.reward_head_kwargs)
     if model.reward_head == "known":
-        return make_reward_head(
-            "known", task=task, reward_fn=known_reward_fn(model), **model.reward_head_kwargs
-        )
+        return make_reward_head("known", task=task, reward_fn=known_reward_fn(model), **kwargs)
+    if model.reward_head == "thompson":
+        kwargs.setdefault("seed", head_seed(model.seed if seed is None else seed, task))
     low, high = state_box(model)
     return make_reward_head(
         model.reward_head,
@@ -166,19 +192,22 @@ def new_reward_head(model: Any, task: int) -> RewardHead:
         features=model.features,
         state_space=spaces.Box(low, high, dtype=np.float64),
         kappa=model.kappa,
-        sigma=similarity_width(model, low, high) if model.reward_head == "ridge" else 0.2,
+        sigma=similarity_width(model, low, high) if model.reward_head in SIMILARITY_HEAD_NAMES else 0.2,
         similarity=model.similarity,
-        **model.reward_head_kwargs,
+        **kwargs,
     )
 
 
-def new_task_learner(model: Any, task: int) -> TaskLearner:
+def new_task_learner(model: Any, task: int, seed: int | None = None) -> TaskLearner:
     """
     The learning state of ``task`` with no samples, as the model's settings say: its reward head
     (``new_reward_head``), the model's ``update_ratio`` and ``first_fit``.
 
     :param model: the model
     :param task: the task
+    :param seed: the run's seed (None: the model's), see ``new_reward_head``
     :return: the learner
     """
-    return TaskLearner(task, new_reward_head(model, task), model.update_ratio, first_fit=model.first_fit)
+    return TaskLearner(
+        task, new_reward_head(model, task, seed), model.update_ratio, first_fit=model.first_fit
+    )

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import functools
+import importlib
 import multiprocessing
 import os
 import signal
@@ -18,7 +19,7 @@ import gymnasium as gym
 import numpy as np
 
 import sb3_trlsd_envs
-from sb3_trlsd.experiments import FIGURES
+from sb3_trlsd.experiments import FIGURES, STUDIES, STUDY_OPTIONS
 from sb3_trlsd.experiments.backends import BACKENDS
 from sb3_trlsd.experiments.benchmark import FAMILIES
 from sb3_trlsd.experiments.protocols import DEFAULT_PROTOCOL, PRESETS
@@ -86,15 +87,20 @@ def render_command(args: argparse.Namespace) -> int:
     return 0
 
 
-def positive_int(text: str) -> int:
-    """An integer >= 1, for ``--runs`` and ``--workers``."""
+def positive_int(text: str, minimum: int = 1) -> int:
+    """An integer >= ``minimum`` (1), for ``--runs`` and ``--workers``."""
     try:
         value = int(text)
     except ValueError as error:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}") from error
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {value}")
+        raise argparse.ArgumentTypeError(f"expected an integer >= {minimum}, got {text!r}") from error
+    if value < minimum:
+        raise argparse.ArgumentTypeError(f"expected an integer >= {minimum}, got {value}")
     return value
+
+
+def non_negative_int(text: str) -> int:
+    """An integer >= 0, for ``--mlp-runs``."""
+    return positive_int(text, minimum=0)
 
 
 @contextmanager
@@ -186,10 +192,35 @@ def leave_ray_at_once(status: int) -> None:
         os._exit(status)
 
 
+def study_options(figure: str, args: argparse.Namespace) -> dict[str, int]:
+    """
+    The options of a study given on the command line (``--tuning-runs`` and ``--mlp-runs`` of ``beyond``).
+
+    :raises ValueError: for an option given to a figure or study that does not take it
+    """
+    given = {name: getattr(args, name) for names in STUDY_OPTIONS.values() for name in names}
+    given = {name: value for name, value in given.items() if value is not None}
+    refused = sorted(set(given) - set(STUDY_OPTIONS.get(figure, ())))
+    if refused:
+        options = ", ".join("--" + name.replace("_", "-") for name in refused)
+        owners = ", ".join(f"'reproduce {study}'" for study in STUDY_OPTIONS)
+        raise ValueError(f"{options}: an option of {owners}, not of {figure!r}")
+    return given
+
+
+def summary_table(figure: str, data: dict) -> str:
+    """The Markdown table of a figure's (or a study's, by its own function) JSON summary."""
+    if figure in STUDIES:
+        module, _, function = STUDIES[figure]
+        return getattr(importlib.import_module(f"sb3_trlsd.experiments.{module}"), function)(data)
+    from sb3_trlsd.experiments.reporting import results_table
+
+    return results_table(data)
+
+
 def reproduce_figure(figure: str, out: Path, cache: Path | None, args: argparse.Namespace) -> None:
     """Run one figure's experiments, write its files and print its table."""
     from sb3_trlsd.experiments import reproduce
-    from sb3_trlsd.experiments.reporting import results_table
 
     data = reproduce(
         figure,
@@ -201,9 +232,11 @@ def reproduce_figure(figure: str, out: Path, cache: Path | None, args: argparse.
         backend=args.backend,
         address=args.address,
         protocol=args.protocol,
+        options=study_options(figure, args),
     )
-    files = ", ".join(str(out.absolute() / f"{figure}.{ext}") for ext in ("png", "csv", "json"))
-    print(f"{figure} done in {data['wall_time_seconds']:.0f} s: {files}\n\n{results_table(data)}\n")
+    paths = data.get("files") or [out / f"{figure}.{ext}" for ext in ("png", "csv", "json")]
+    files = ", ".join(str(Path(path).absolute()) for path in paths)
+    print(f"{figure} done in {data['wall_time_seconds']:.0f} s: {files}\n\n{summary_table(figure, data)}\n")
 
 
 def reproduce_command(args: argparse.Namespace) -> int:
@@ -212,9 +245,11 @@ def reproduce_command(args: argparse.Namespace) -> int:
 
     :return: 0, or 128 + the signal's number when SIGINT or SIGTERM stopped it
     """
+    figures = list(FIGURES) if args.figure == "all" else [args.figure]
+    for figure in figures:
+        study_options(figure, args)  # refused before anything is made
     out = usable_directory(args.out, "--out")
     cache = None if args.no_cache else usable_directory(args.cache or out / "runs", "--cache")
-    figures = list(FIGURES) if args.figure == "all" else [args.figure]
     return run_in_turn("reproduce", figures, lambda figure: reproduce_figure(figure, out, cache, args), cache)
 
 
@@ -298,12 +333,41 @@ def build_parser() -> argparse.ArgumentParser:
 
     reproduce = commands.add_parser(
         "reproduce",
-        help="reproduce a figure of the paper's section 4 (CSV, PNG and JSON)",
-        description="Reproduce the paper's experiments; without --runs, at the paper's sizes.",
+        help="reproduce a figure of the paper's section 4, or a study beyond it (CSV, PNG and JSON)",
+        description="Reproduce the paper's experiments; without --runs, at the paper's sizes. 'beyond' "
+        "(issue 18) tunes eq. 9, OFUL, Thompson sampling and the Bernstein bound on the same budget (8 "
+        "configurations each, on --tuning-runs runs whose seeds are disjoint from the evaluation's, selected "
+        "on the reward over the last 500 online transitions), then evaluates each selection on --runs runs "
+        "in Figure 5's setting (linear Q; MLP Q on --mlp-runs runs), on the paper's maze and on its variant "
+        "with reward noise by cell, next to the known reward: beyond.csv, beyond.png, "
+        "beyond_improvement.png and beyond.json, with IQM and mean under 95% stratified bootstrap "
+        "intervals and P(method > eq. 9).",
     )
-    reproduce.add_argument("figure", choices=[*FIGURES, "all"], help="which figure")
     reproduce.add_argument(
-        "--runs", type=positive_int, default=None, help="runs per method (default: the paper's)"
+        "figure",
+        choices=[*FIGURES, *STUDIES, "all"],
+        help="which figure (all: fig1 to fig8), or beyond: the comparison of confidence bounds",
+    )
+    reproduce.add_argument(
+        "--runs",
+        type=positive_int,
+        default=None,
+        help="runs per method (default: the paper's; beyond: 500 evaluation runs)",
+    )
+    reproduce.add_argument(
+        "--tuning-runs",
+        type=positive_int,
+        default=None,
+        metavar="N",
+        help="beyond only: tuning runs per configuration (default: 100)",
+    )
+    reproduce.add_argument(
+        "--mlp-runs",
+        type=non_negative_int,
+        default=None,
+        metavar="N",
+        help="beyond only: evaluation runs per method with the MLP Q too, one run at a time (~10 s each; "
+        "at most --runs; default: 0, none)",
     )
     reproduce.add_argument("--out", default="results", help="output directory (default: %(default)s)")
     reproduce.add_argument("--seed", type=int, default=0, help="seed of the first run; run r uses seed + r")

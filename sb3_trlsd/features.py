@@ -6,9 +6,11 @@ Distances that overflow (states beyond ~1e150) count as infinite, so their simil
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
-__all__ = ["gaussian_similarity", "grid_centres", "squared_distances"]
+__all__ = ["gaussian_similarity", "grid_centres", "similarity_widths", "squared_distances"]
 
 DIRECT_POINTS = 4  # up to this many query points, distances are taken directly (see squared_distances)
 
@@ -67,6 +69,21 @@ def gaussian_similarity(a: np.ndarray, b: np.ndarray, sigma: float) -> np.ndarra
     with np.errstate(over="ignore"):  # a huge finite distance over 2 sigma^2 is inf: similarity 0
         exponent *= -1.0 / (2.0 * sigma**2)
     return np.exp(exponent, out=exponent)  # eq. 6
+
+
+def similarity_widths(sigma: float | Sequence[float] | np.ndarray) -> tuple[float, np.ndarray | None]:
+    """
+    Eq. 6 with one width per state dimension, as eq. 6 of one width on rescaled states: S with widths
+    sigma_d on states s is S with width sigma_1 on the states s_d * sigma_1 / sigma_d.
+
+    :param sigma: one width, or one per dimension (> 0, finite)
+    :return: the width sigma_1, and the scale of each dimension (d,) (None when the widths are all equal)
+    :raises ValueError: naming ``sigma``
+    """
+    widths = np.atleast_1d(np.asarray(sigma, dtype=np.float64))
+    if widths.ndim != 1 or not len(widths) or not np.all(np.isfinite(widths)) or not np.all(widths > 0):
+        raise ValueError(f"sigma must be > 0 and finite (the width of the similarity), got {sigma!r}")
+    return float(widths[0]), None if np.all(widths == widths[0]) else widths[0] / widths
 
 
 def grid_centres(low: np.ndarray, high: np.ndarray, n_per_dim: int) -> np.ndarray:

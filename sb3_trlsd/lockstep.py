@@ -130,6 +130,7 @@ class Lockstep:
         self.n_tasks, self.state_dim = model.policy.n_tasks, model.replay_buffer.obs_shape[0]
         buffer_size = (0 if source is None else len(source)) + max(self.n_steps, 1)
         self.runs = [_Run(model, buffer_size, source, self.n_tasks) for _ in range(n_runs)]
+        self.seeds: list[int | None] = [model.seed] * n_runs  # each run's, as ``run`` is given them
         self.shared_rows: LinearFitRows | None = None  # the source's rows, in the FQI's form
         self.n_source = 0 if source is None else len(source)
         if source is not None:
@@ -141,10 +142,13 @@ class Lockstep:
             self.shared_rows.extend(rows.take(self.source_order))
 
     def learner(self, run: int, task: int) -> TaskLearner:
-        """The learning state of ``task`` in ``run``, created (no samples) the first time it is asked for."""
+        """
+        The learning state of ``task`` in ``run``, created (no samples) the first time it is asked for, as a
+        ``TRLSD`` model of the run's seed creates it (a seeded head draws from that seed).
+        """
         learners = self.runs[run].learners
         if task not in learners:
-            learners[task] = new_task_learner(self.model, task)
+            learners[task] = new_task_learner(self.model, task, seed=self.seeds[run])
         return learners[task]
 
     def refit(self, pairs: Sequence[tuple[int, int]]) -> None:
@@ -204,6 +208,7 @@ class Lockstep:
         n_runs = len(self.runs)
         if len(seeds) != n_runs:
             raise ValueError(f"one seed per run: {n_runs} runs, got {len(seeds)} seeds")
+        self.seeds = list(seeds)
         everyone = np.arange(n_runs)
         states, tasks = self.envs.reset(everyone, list(seeds))
         records = [

@@ -11,11 +11,18 @@ from gymnasium import spaces
 
 from sb3_trlsd.feature_maps import FEATURE_MAPS, FeatureMap
 from sb3_trlsd.observations import state_space_of
-from sb3_trlsd.reward_heads import REWARD_HEAD_NAMES, SIMILARITIES, RewardHead
+from sb3_trlsd.reward_heads import (
+    CONFIDENCE_BOUND_HEAD_NAMES,
+    REWARD_HEAD_NAMES,
+    SIMILARITIES,
+    RewardHead,
+)
 from sb3_trlsd.task_learner import FIRST_FIT_RULES
 
 __all__ = ["check_arguments", "hyperparameters_of", "resolve_policy"]
 
+# The heads TRLSD builds by name: the paper's, and those with other confidence bounds.
+HEAD_NAMES = REWARD_HEAD_NAMES + CONFIDENCE_BOUND_HEAD_NAMES
 # Settings of the features Phi that belong to TRLSD (which shares Phi between the policy and the heads).
 FEATURE_SETTINGS = ("features", "rbf_per_dim", "rbf_sigma", "state_bounds")
 
@@ -42,9 +49,9 @@ def check_arguments(model: Any) -> None:
     observation_space = getattr(model, "observation_space", None)
     if observation_space is not None:
         state_space_of(observation_space)
-    if not isinstance(model.reward_head, RewardHead) and model.reward_head not in REWARD_HEAD_NAMES:
+    if not isinstance(model.reward_head, RewardHead) and model.reward_head not in HEAD_NAMES:
         raise ValueError(
-            f"reward_head must be one of {sorted(REWARD_HEAD_NAMES)} or a RewardHead instance, "
+            f"reward_head must be one of {list(HEAD_NAMES)} or a RewardHead instance, "
             f"got {model.reward_head!r}"
         )
 
@@ -91,6 +98,11 @@ def check_arguments(model: Any) -> None:
     integer("fqi_max_iterations", 1, none_allowed=True)
     if model.similarity not in SIMILARITIES:
         raise ValueError(f"similarity must be 'state' or 'features', got {model.similarity!r}")
+    if model.reward_head == "bernstein" and model.similarity != "state":
+        raise ValueError(
+            f"similarity must be 'state' with reward_head='bernstein' (its weights are eq. 6's), "
+            f"got {model.similarity!r}"
+        )
     if model.first_fit not in FIRST_FIT_RULES:
         raise ValueError(
             f"first_fit must be one of {list(FIRST_FIT_RULES)} (when a task's Q is first fitted), "

@@ -56,8 +56,12 @@ class TRLSD(TRLSDInterface, OffPolicyAlgorithm):
         state Box, or a ``{"state": Box, "task": Discrete}`` Dict for several tasks
     :param gamma: discount factor
     :param reward_head: ``"ridge"`` (eq. 9), ``"tabular"`` (per-cell means, eq. 10, on a grid over the state
-        box or a ``cell_fn``), ``"corners"`` (only the grid's corner cells pay), ``"known"`` (CI = 0), or a
-        ``RewardHead`` copied for each task
+        box or a ``cell_fn``), ``"corners"`` (only the grid's corner cells pay), ``"known"`` (CI = 0); other
+        confidence bounds (``sb3_trlsd.reward_heads``): ``"ridge_posterior"`` (OFUL / LinUCB's kappa
+        sqrt(phi^T A^-1 phi) on the shared features, refitted when det A has grown by ``update_ratio``),
+        ``"thompson"`` (posterior draws of the ridge weights of scale kappa, one per refit, seeded by ``seed``
+        and the task) or ``"bernstein"`` (UCB-V's kernel-weighted empirical-Bernstein bound, eq. 6 of width
+        ``sigma``); or a ``RewardHead`` copied for each task
     :param kappa: optimism (eq. 9, 10); 0 is the non-optimistic method of Atkeson & Santamaria
     :param sigma: width of the similarity in W (eq. 8): for eq. 6 a fraction of the state box, one or one per
         dimension (None: ``default_kernel_width(d)``, 0.04 in 2-D: the paper's 0.2 on the maze); for eq. 7
@@ -78,7 +82,9 @@ class TRLSD(TRLSDInterface, OffPolicyAlgorithm):
     :param state_bounds: ``(low, high)`` of the states for an unbounded Box (None: the Box's, finite)
     :param reward_fn: ``reward_fn(states (n, d), task) -> (n,)``, the expected reward for the ``"known"``
         head; by default the env's ``expected_reward``. Not saved: give it again to ``load``
-    :param reward_head_kwargs: extra arguments of the reward heads (e.g. ``w_floor``, ``r_max``)
+    :param reward_head_kwargs: extra arguments of the named reward heads (e.g. ``w_floor``, ``r_max``;
+        ``ridge`` of the linear-posterior heads, ``seed`` of ``"thompson"``, ``reward_range`` of
+        ``"bernstein"``)
     :param source_transitions: source set loaded (rewards discarded) at the first ``learn``: a number of
         random transitions (the paper's 25,000) from ``source_env``, or the path of a ``Transitions`` .npz
     :param source_seed: seed of the collection of ``source_transitions`` (None: ``seed``)

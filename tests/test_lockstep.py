@@ -21,7 +21,7 @@ from sb3_trlsd.experiments.reporting import mean_and_standard_error, window_mean
 from sb3_trlsd.experiments.runner import Method, multitask_run
 from sb3_trlsd.fqi import LinearFQISolver, fit_linear_fqi_runs
 from sb3_trlsd.lockstep import Lockstep
-from sb3_trlsd_envs import FOUR_ROOMS_ID, MAZE_ID
+from sb3_trlsd_envs import CELL_NOISE_STDS, FOUR_ROOMS_ID, MAZE_ID
 from sb3_trlsd_envs.maze_runs import step_mazes
 
 K, N_ACTIONS, GAMMA = 6, 3, 0.8
@@ -78,11 +78,14 @@ def test_a_run_without_rows_keeps_its_start_and_bad_inputs_are_refused():
         )
 
 
-def test_mazes_stepped_together_follow_their_trajectories_alone():
-    """Each maze draws from its own generator what it draws alone, rebounds on walls included."""
+@pytest.mark.parametrize(
+    "maze_kwargs", [{}, {"reward_noise_std": CELL_NOISE_STDS}], ids=["paper-maze", "noise-by-cell"]
+)
+def test_mazes_stepped_together_follow_their_trajectories_alone(maze_kwargs):
+    """Each maze draws from its own generator what it draws alone, rebounds on walls and noise by cell too."""
     seeds, steps = [3, 4, 5, 6], 300
-    alone = [gym.make(MAZE_ID, task=task).unwrapped for task in (0, 7, 12, 24)]
-    together = [gym.make(MAZE_ID, task=task).unwrapped for task in (0, 7, 12, 24)]
+    alone = [gym.make(MAZE_ID, task=task, **maze_kwargs).unwrapped for task in (0, 7, 12, 24)]
+    together = [gym.make(MAZE_ID, task=task, **maze_kwargs).unwrapped for task in (0, 7, 12, 24)]
     for maze, twin, seed in zip(alone, together, seeds, strict=True):
         maze.reset(seed=seed)
         twin.reset(seed=seed)
@@ -99,6 +102,9 @@ def test_mazes_stepped_together_follow_their_trajectories_alone():
                 twin.reset()
     with pytest.raises(ValueError, match="one dynamics"):
         step_mazes([alone[0], gym.make(MAZE_ID, walls=()).unwrapped], np.zeros(2, dtype=int))
+    other_noise = {"reward_noise_std": 0.5 if maze_kwargs else CELL_NOISE_STDS}
+    with pytest.raises(ValueError, match="one dynamics"):
+        step_mazes([alone[0], gym.make(MAZE_ID, **other_noise).unwrapped], np.zeros(2, dtype=int))
 
 
 def test_env_batch_moves_plain_mazes_together_and_any_other_env_one_by_one():
@@ -141,6 +147,9 @@ def drive_alone(
         Method("features similarity", similarity="features"),
         Method("known", reward_head="known"),
         Method("no transfer", transfer=False),
+        Method("ridge posterior", reward_head="ridge_posterior", kappa=0.3),
+        Method("thompson", reward_head="thompson", kappa=0.3),  # each run draws from its own seed
+        Method("bernstein", reward_head="bernstein", kappa=0.03, reward_head_kwargs={"reward_range": 0.5}),
     ],
     ids=lambda method: method.label,
 )

@@ -9,6 +9,7 @@ from gymnasium.utils.env_checker import check_env as gym_check_env
 from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 from sb3_trlsd_envs import (
+    CELL_NOISE_STDS,
     CORNER_TASKS,
     MAZE_ID,
     N_TASKS,
@@ -71,18 +72,69 @@ def test_vectorised_random_transitions_have_the_same_statistics_as_stepping():
     assert data["rewards"][target].mean() == pytest.approx(1.0, abs=5 / np.sqrt(target.sum()))
 
 
+def rows_by_cell(states):
+    """((i, j), the rows of ``states`` in cell (i, j)) for the 25 cells."""
+    cells = cell_of(states)
+    return [((i, j), (cells[:, 0] == i) & (cells[:, 1] == j)) for i in range(1, 6) for j in range(1, 6)]
+
+
 def test_expected_reward_agrees_with_sampled_means_per_cell():
     """expected_reward is the mean of the sampled rewards in every cell (5 standard errors)."""
     env = SharedDynamicsMaze(task=(4, 2))
     data = env.random_transitions(60_000, seed=3)
-    cells = cell_of(data["states"])
     expected = env.expected_reward(data["states"])
-    for i in range(1, 6):
-        for j in range(1, 6):
-            rows = (cells[:, 0] == i) & (cells[:, 1] == j)
-            assert data["rewards"][rows].mean() == pytest.approx(
-                expected[rows][0], abs=5 / np.sqrt(rows.sum())
-            )
+    for _, rows in rows_by_cell(data["states"]):
+        assert data["rewards"][rows].mean() == pytest.approx(expected[rows][0], abs=5 / np.sqrt(rows.sum()))
+
+
+def test_noise_by_cell_has_each_cell_s_standard_deviation_around_eq_12_s_mean():
+    """
+    With a table of standard deviations, the reward at s_t has its cell's: the checkerboard's 0.1 and 1.44,
+    around the same means (1 in the task's cell, 0 elsewhere). Tolerance: 5 standard errors of the mean and
+    of the standard deviation, cell by cell, from the vectorised sampler (stepping is compared with it below).
+    """
+    env = SharedDynamicsMaze(task=(2, 3), reward_noise_std=CELL_NOISE_STDS)
+    data = env.random_transitions(100_000, seed=4)
+    expected = env.expected_reward(data["states"])
+    for (i, j), rows in rows_by_cell(data["states"]):
+        std = CELL_NOISE_STDS[i - 1][j - 1]
+        assert std == (0.1 if (i + j) % 2 == 0 else 1.44)
+        noise = data["rewards"][rows] - expected[rows]
+        assert noise.mean() == pytest.approx(0.0, abs=5 * std / np.sqrt(rows.sum()))
+        assert noise.std() == pytest.approx(std, abs=5 * std / np.sqrt(2 * rows.sum()))
+    assert np.mean(np.square(CELL_NOISE_STDS)) == pytest.approx(1.0, abs=1e-3)  # the paper's on average
+
+
+@pytest.mark.parametrize("sampler", ["step", "random_transitions"])
+def test_noise_by_cell_scales_the_same_draws_and_leaves_the_paper_s_maze_unchanged(sampler):
+    """
+    A table only scales the noise: the maze makes the same moves and draws the same N(0, 1), seed for seed,
+    so that (r - E[r]) / std(cell) is the default maze's r - E[r]; a table of ones is the default, to the bit.
+    """
+
+    def rewards_and_states(**kwargs):
+        env = SharedDynamicsMaze(task=7, **kwargs)
+        if sampler == "random_transitions":
+            data = env.random_transitions(3_000, seed=6)
+            return data["rewards"], data["states"]
+        env.reset(seed=6)
+        actions = np.random.default_rng(0).integers(4, size=3_000)
+        states, rewards = [], []
+        for action in actions:
+            states.append(env.state.copy())
+            rewards.append(env.step(int(action))[1])
+            if len(env.trajectory) > 60:
+                env.reset()
+        return np.array(rewards), np.array(states)
+
+    paper_rewards, paper_states = rewards_and_states()
+    ones_rewards, _ = rewards_and_states(reward_noise_std=np.ones((5, 5)).tolist())
+    cell_rewards, cell_states = rewards_and_states(reward_noise_std=CELL_NOISE_STDS)
+    np.testing.assert_array_equal(ones_rewards, paper_rewards)
+    np.testing.assert_array_equal(cell_states, paper_states)
+    expected = expected_reward(paper_states, 7)
+    stds = np.array(CELL_NOISE_STDS)[cell_of(paper_states)[:, 0] - 1, cell_of(paper_states)[:, 1] - 1]
+    np.testing.assert_allclose((cell_rewards - expected) / stds, paper_rewards - expected, rtol=1e-12)
 
 
 def test_same_seed_gives_the_same_trajectory():
@@ -100,8 +152,13 @@ def test_same_seed_gives_the_same_trajectory():
 
 @pytest.mark.parametrize(
     "kwargs",
-    [{}, {"tasks": "corners", "task_schedule": "round_robin"}, {"tasks": "all", "task_schedule": "random"}],
-    ids=["single-task", "round-robin", "random-schedule"],
+    [
+        {},
+        {"tasks": "corners", "task_schedule": "round_robin"},
+        {"tasks": "all", "task_schedule": "random"},
+        {"reward_noise_std": CELL_NOISE_STDS},
+    ],
+    ids=["single-task", "round-robin", "random-schedule", "noise-by-cell"],
 )
 def test_env_passes_gymnasium_and_sb3_checkers_without_warnings(kwargs):
     """
@@ -214,6 +271,10 @@ def test_time_limit_comes_from_registration_kwargs():
         ({"termination_prob": -0.1}, "termination_prob"),
         ({"termination_prob": 1.5}, "termination_prob"),
         ({"reward_noise_std": -1.0}, "reward_noise_std"),
+        ({"reward_noise_std": np.ones((4, 5))}, "reward_noise_std"),
+        ({"reward_noise_std": [[1.0] * 5] * 4 + [[1.0, 1.0, -0.1, 1.0, 1.0]]}, "reward_noise_std"),
+        ({"reward_noise_std": [[np.nan] * 5] * 5}, "reward_noise_std"),
+        ({"reward_noise_std": "loud"}, "reward_noise_std"),
         ({"render_mode": "human"}, "render_mode"),
         ({"task_schedule": "lottery"}, "task_schedule"),
         ({"task": 1, "tasks": "all"}, "task"),
@@ -231,6 +292,10 @@ def test_time_limit_comes_from_registration_kwargs():
         "negative-p",
         "p-above-one",
         "negative-reward-noise",
+        "noise-table-4x5",
+        "noise-table-negative-cell",
+        "noise-table-nan",
+        "noise-text",
         "unknown-render-mode",
         "unknown-schedule",
         "task-and-tasks",

@@ -425,6 +425,22 @@ def test_new_model_settings_are_saved_loaded_and_checked(tmp_path):
         TRLSD("LinearPolicy", env, reward_head_kwargs={"log_count": "log2"}).task_learner(0)
 
 
+@pytest.mark.parametrize(
+    ("head", "floored"), [("ridge_posterior", False), ("thompson", False), ("bernstein", True)]
+)
+def test_a_method_s_head_kwargs_go_over_the_protocol_s_and_each_head_gets_what_applies(head, floored):
+    """
+    A ``Method``'s ``reward_head_kwargs`` reach its head over the protocol's choices; the protocol's
+    ``w_floor`` reaches the heads with a floor and not the linear-posterior ones (which would refuse it).
+    """
+    protocol = Protocol(w_floor=1e-3, r_max=1.0)
+    method = Method("beyond", reward_head=head, reward_head_kwargs={"r_max": 2.0})
+    built = method.make_model(gym.make(MAZE_ID, task=1), seed=0, protocol=protocol).reward_head_of(1)
+    assert built.r_max == 2.0
+    assert (getattr(built, "w_floor", None) == 1e-3) is floored
+    assert method.parameters()["reward_head_kwargs"] == {"r_max": 2.0}
+
+
 # ---------------------------------------------------------------------------- figures, JSON, cache
 @pytest.fixture
 def tiny_figures(monkeypatch):

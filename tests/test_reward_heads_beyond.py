@@ -319,3 +319,88 @@ def test_trlsd_learns_with_the_head(head):
     assert type(task_head) is type(head) and task_head is not head
     assert task_head.n_samples == 60 and head.n_samples == 0
     assert model.policy_updates[0] >= 2
+
+
+# ------------------------------------------------------------------------------------------ by name in TRLSD
+NAMED_HEADS = [
+    # name, its own setting through reward_head_kwargs, the head's attribute that shows it, the class
+    pytest.param("ridge_posterior", {"ridge": 2.0}, "ridge", RidgePosteriorRewardHead, id="ridge_posterior"),
+    pytest.param("thompson", {"ridge": 2.0}, "ridge", ThompsonRidgeRewardHead, id="thompson"),
+    pytest.param("bernstein", {"reward_range": 3.0}, "reward_range", BernsteinRewardHead, id="bernstein"),
+]
+
+
+@pytest.mark.parametrize(("name", "kwargs", "attribute", "head_class"), NAMED_HEADS)
+def test_trlsd_builds_the_head_by_name_saves_and_loads_it(name, kwargs, attribute, head_class, tmp_path):
+    """
+    ``TRLSD(reward_head=name)`` builds the head with the model's kappa, its features (the linear-posterior
+    heads) or its sigma in state units (Bernstein: 0.04 of the box is the paper's 0.2), and its own setting
+    from ``reward_head_kwargs``; a saved model loads with the same head, which answers and learns as before.
+    """
+    model = TRLSD(
+        "LinearPolicy",
+        gym.make(MAZE_ID, task=3),
+        reward_head=name,
+        kappa=0.3,
+        sigma=0.04,
+        reward_head_kwargs=kwargs,
+        source_transitions=400,
+        seed=2,
+    )
+    model.learn(50)
+    head = model.reward_head_of(3)
+    assert type(head) is head_class and head.kappa == 0.3 and head.n_samples == 50
+    assert getattr(head, attribute) == next(iter(kwargs.values()))
+    if name == "bernstein":
+        assert head.sigma == pytest.approx(0.2)
+    else:
+        assert head.features is model.features
+    assert model.policy_updates[3] >= 2
+
+    model.save(tmp_path / "model")
+    loaded = TRLSD.load(tmp_path / "model", env=gym.make(MAZE_ID, task=3))
+    assert loaded.reward_head == name and type(loaded.reward_head_of(3)) is head_class
+    states = np.random.default_rng(0).uniform(0, 5, size=(200, 2))
+    new_states, new_rewards = np.random.default_rng(1).uniform(0, 5, size=(30, 2)), np.ones(30)
+    for twin in (model, loaded):
+        np.testing.assert_array_equal(twin.reward_head_of(3).optimistic(states), head.optimistic(states))
+    for twin in (model, loaded):
+        twin.reward_head_of(3).update(new_states, new_rewards)
+    np.testing.assert_array_equal(
+        loaded.reward_head_of(3).optimistic(states), model.reward_head_of(3).optimistic(states)
+    )
+    np.testing.assert_array_equal(
+        loaded.reward_head_of(3).uncertainty(states), model.reward_head_of(3).uncertainty(states)
+    )
+
+
+def test_named_thompson_heads_draw_per_seed_and_task_reproducibly():
+    """Each task (and each seed) draws its own normals; the same seed gives the same draws again."""
+
+    def head_seeds(seed):
+        model = TRLSD("LinearPolicy", gym.make(MAZE_ID, tasks="all"), reward_head="thompson", seed=seed)
+        return [model.reward_head_of(task).seed for task in (0, 1)]
+
+    assert head_seeds(5) == head_seeds(5)
+    assert len({*head_seeds(5), *head_seeds(6)}) == 4
+    unseeded = TRLSD("LinearPolicy", gym.make(MAZE_ID), reward_head="thompson")
+    assert unseeded.reward_head_of(0).seed is None  # no seed: fresh entropy, as the head itself takes it
+    given = TRLSD("LinearPolicy", gym.make(MAZE_ID), reward_head="thompson", reward_head_kwargs={"seed": 7})
+    assert given.reward_head_of(0).seed == 7
+
+
+def test_trlsd_refuses_bernstein_with_the_feature_similarity():
+    with pytest.raises(ValueError, match="similarity must be 'state'"):
+        TRLSD("LinearPolicy", gym.make(MAZE_ID), reward_head="bernstein", similarity="features")
+
+
+def test_bernstein_widths_per_dimension_are_one_width_on_rescaled_states():
+    """Eq. 6 of widths (0.1, 0.4) is eq. 6 of width 0.1 on states whose second coordinate is divided by 4."""
+    rng = np.random.default_rng(3)
+    states, rewards, queries = rng.uniform(0, 1, (40, 2)), rng.normal(size=40), rng.uniform(0, 1, (9, 2))
+    scale = np.array([1.0, 0.25])
+    per_dimension = fed(BernsteinRewardHead(kappa=0.4, sigma=(0.1, 0.4)), states, rewards)
+    rescaled = fed(BernsteinRewardHead(kappa=0.4, sigma=0.1), states * scale, rewards)
+    np.testing.assert_allclose(per_dimension.optimistic(queries), rescaled.optimistic(queries * scale), RTOL)
+    tracker = per_dimension.tracker(queries)
+    np.testing.assert_allclose(tracker.optimistic(), per_dimension.optimistic(queries), RTOL)

@@ -15,11 +15,14 @@ from sb3_trlsd.experiments.statistics import (
     aggregate_intervals,
     aggregate_mean,
     aggregate_median,
+    independent_bootstrap_ci,
     interquartile_mean,
     interval_cell,
+    mean_ratio,
     optimality_gap,
     probability_of_improvement,
     probability_of_improvement_ci,
+    scores_by_task,
     stratified_bootstrap_ci,
 )
 
@@ -197,6 +200,30 @@ def test_window_intervals_put_bootstrap_cells_next_to_mean_and_standard_error():
         ["| b", "[0, 3)"],
         ["| b", "[3, 6)"],
     ]
+
+
+def test_scores_by_task_make_one_column_per_task_when_the_tasks_are_balanced():
+    """Run r of a figure is on task r % n: column t holds task t's runs in order; unbalanced: one stratum."""
+    scores, tasks = np.arange(6.0), np.array([0, 1, 2, 0, 1, 2])
+    np.testing.assert_array_equal(scores_by_task(scores, tasks), [[0, 1, 2], [3, 4, 5]])
+    np.testing.assert_array_equal(scores_by_task(scores[:5], tasks[:5]), scores[:5])
+    np.testing.assert_array_equal(scores_by_task(scores, np.zeros(6)), scores)
+    with pytest.raises(ValueError, match="n_runs"):
+        scores_by_task(scores, tasks[:4])
+
+
+def test_mean_ratio_is_the_ratio_of_the_aggregate_means_resampled_on_each_side():
+    """The point is mean(X) / mean(Y); the interval (X, Y resampled apart) covers it, narrower with runs."""
+    rng = np.random.default_rng(4)
+    x, y = rng.normal(0.6, 0.2, (40, 5)), rng.normal(0.75, 0.2, (20, 5))
+    point, low, high = independent_bootstrap_ci(mean_ratio, [x, y], reps=500)
+    assert point == pytest.approx(aggregate_mean(x) / aggregate_mean(y))
+    assert low < point < high
+    _, wide_low, wide_high = independent_bootstrap_ci(mean_ratio, [x[:8], y[:4]], reps=500)
+    assert wide_high - wide_low > high - low
+    # A zero level: no finite interval.
+    _, zero_low, zero_high = independent_bootstrap_ci(mean_ratio, [x, np.zeros(4)], reps=20)
+    assert not np.isfinite([zero_low, zero_high]).any()
 
 
 def test_improvement_figure_writes_a_png(tmp_path):

@@ -1,15 +1,19 @@
 """
 Reproductions of the paper's experiments (section 4, Figures 1-8), one module per experiment, and the
 registry the ``sb3-trlsd reproduce`` command runs them from. Each figure writes ``figN.csv`` (curves),
-``figN.png`` and ``figN.json`` (aggregates, policy updates, wall time, parameters, seed, version).
+``figN.png`` and ``figN.json`` (aggregates, policy updates, wall time, parameters, seed, version). Studies
+beyond the paper (``STUDIES``: ``beyond``, issue 18's comparison of confidence bounds) run the same way, with
+options of their own.
 """
 
 from __future__ import annotations
 
 import importlib
+from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
-__all__ = ["FIGURES", "reproduce"]
+__all__ = ["FIGURES", "STUDIES", "STUDY_OPTIONS", "reproduce"]
 
 # Figure -> (module of sb3_trlsd.experiments, function(out, how: Reproduction) -> summary).
 # Imported on use, so that listing the figures (the command line's help) does not load torch and SB3.
@@ -23,6 +27,10 @@ FIGURES: dict[str, tuple[str, str]] = {
     "fig7": ("sensitivity", "reproduce"),
     "fig8": ("multitask", "reproduce"),
 }
+# Study -> (module, function(out, how, **options) -> summary, function(summary) -> its Markdown table).
+STUDIES: dict[str, tuple[str, str, str]] = {"beyond": ("beyond", "reproduce", "table")}
+# Study -> the keyword arguments of its function that ``reproduce`` passes on as ``options``.
+STUDY_OPTIONS: dict[str, tuple[str, ...]] = {"beyond": ("tuning_runs", "mlp_runs")}
 
 
 def reproduce(
@@ -35,11 +43,12 @@ def reproduce(
     backend: str = "loky",
     address: str | None = None,
     protocol: str = "as-built",
+    options: Mapping[str, Any] | None = None,
 ) -> dict:
     """
-    Run one figure's experiment and write its CSV, PNG and JSON to ``out``.
+    Run one figure's experiment (or a study's) and write its CSV, PNG and JSON to ``out``.
 
-    :param figure: ``"fig1"`` .. ``"fig8"``
+    :param figure: ``"fig1"`` .. ``"fig8"``, or a study of ``STUDIES``
     :param out: output directory (created if needed)
     :param runs: runs per method (None: the paper's size)
     :param seed: seed of the first run; run r uses ``seed + r``
@@ -52,10 +61,19 @@ def reproduce(
     :param address: (ray) the cluster to join: ``"auto"``, ``"host:port"`` or ``"ray://host:port"``; None:
         start a local one
     :param protocol: the name of the choices the paper leaves open (``protocols.PRESETS``; default: today's)
+    :param options: a study's own options (``STUDY_OPTIONS``, e.g. ``{"tuning_runs": 100}`` for ``beyond``)
     :return: the figure's JSON summary
     """
-    if figure not in FIGURES:
-        raise ValueError(f"figure must be one of {', '.join(FIGURES)}, got {figure!r}")
+    if figure not in FIGURES and figure not in STUDIES:
+        raise ValueError(f"figure must be one of {', '.join([*FIGURES, *STUDIES])}, got {figure!r}")
+    options = dict(options or {})
+    unknown = sorted(set(options) - set(STUDY_OPTIONS.get(figure, ())))
+    if unknown:
+        raise ValueError(
+            f"{figure} takes no option {', '.join(unknown)} (options: "
+            + "; ".join(f"{name}: {', '.join(names)}" for name, names in STUDY_OPTIONS.items())
+            + ")"
+        )
     if runs is not None and runs < 1:
         raise ValueError(f"runs must be >= 1, got {runs}")
     if workers < 1:
@@ -74,6 +92,6 @@ def reproduce(
     )
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    module, function = FIGURES[figure]
+    module, function = FIGURES[figure] if figure in FIGURES else STUDIES[figure][:2]
     run = getattr(importlib.import_module(f"sb3_trlsd.experiments.{module}"), function)
-    return run(out, how)
+    return run(out, how, **options)

@@ -26,10 +26,13 @@ from sb3_trlsd_envs import task_cell
 from sb3_trlsd_envs.dynamics import DEFAULT_WALLS
 
 __all__ = [
+    "curves_of",
     "draw_snapshot",
     "new_figure",
     "save_figure",
+    "transfer_results",
     "update_counts",
+    "write_curves_figure",
     "write_improvement_figure",
     "write_transfer_figure",
 ]
@@ -105,6 +108,67 @@ def write_improvement_figure(
     return intervals
 
 
+def curves_of(records: Mapping[str, Sequence[RunRecord]]) -> dict[str, np.ndarray]:
+    """Each method's runs as one array of rewards, (runs, transitions)."""
+    return {label: np.stack([record.rewards for record in runs]) for label, runs in records.items()}
+
+
+def transfer_results(
+    records: Mapping[str, Sequence[RunRecord]], windows: Sequence[tuple[int, int]]
+) -> dict[str, dict[str, Any]]:
+    """
+    The aggregates of each method's transfer runs: the reward over ``windows`` (mean, standard error over
+    source sets, ``se_runs``), the policy updates, the seconds per run and the runs.
+
+    :return: method label -> its aggregates
+    """
+    curves = curves_of(records)
+    return {
+        label: {
+            "reward": window_means(curves[label], windows, source_sets_of(runs)),
+            "policy_updates": update_counts(runs),
+            "seconds_per_run": float(np.mean([record.seconds for record in runs])),
+            "runs": len(runs),
+        }
+        for label, runs in records.items()
+    }
+
+
+def write_curves_figure(
+    out: Path,
+    name: str,
+    title: str,
+    curves: Mapping[str, np.ndarray],
+    panels: Sequence[tuple[str, Sequence[str]]] | None = None,
+    picture: tuple[Snapshot, int, str] | None = None,
+    legend: Mapping[str, str] | None = None,
+) -> None:
+    """
+    Write ``name``.csv (per-transition curves) and ``name``.png (the curves, one panel per group of methods).
+
+    :param curves: method label -> (runs, transitions) rewards
+    :param panels: (panel title, method labels) of each panel; one panel with every method if None
+    :param picture: (snapshot, task, title) drawn in a first panel, if given
+    :param legend: method label -> its name in the legend (default: the label); a name has one color in
+        every panel
+    """
+    write_curves_csv(out / f"{name}.csv", "transition", curves)
+    panels = panels or [("", list(curves))]
+    legend = legend or {}
+    names = {label: legend.get(label, label) for label in curves}
+    figure, axes = new_figure(len(panels) + (picture is not None))
+    if picture is not None:
+        draw_snapshot(axes.pop(0), *picture)
+    # One color per name, in all panels.
+    colors = {name: f"C{index}" for index, name in enumerate(dict.fromkeys(names.values()))}
+    for ax, (panel_title, labels) in zip(axes, panels, strict=True):
+        plot_curves(
+            ax, {names[label]: curves[label] for label in labels}, smooth=CURVE_SMOOTHING, colors=colors
+        )
+        ax.set_title(panel_title)
+    save_figure(figure, out / f"{name}.png", title)
+
+
 def write_transfer_figure(
     out: Path,
     name: str,
@@ -126,32 +190,13 @@ def write_transfer_figure(
     :param picture: (snapshot, task, title) drawn in a first panel, if given
     :return: the JSON summary
     """
-    curves = {label: np.stack([record.rewards for record in runs]) for label, runs in records.items()}
-    write_curves_csv(out / f"{name}.csv", "transition", curves)
-    panels = panels or [("", list(curves))]
-    figure, axes = new_figure(len(panels) + (picture is not None))
-    if picture is not None:
-        draw_snapshot(axes.pop(0), *picture)
-    colors = {label: f"C{index}" for index, label in enumerate(curves)}  # one color per method, all panels
-    for ax, (panel_title, labels) in zip(axes, panels, strict=True):
-        plot_curves(ax, {label: curves[label] for label in labels}, smooth=CURVE_SMOOTHING, colors=colors)
-        ax.set_title(panel_title)
-    save_figure(figure, out / f"{name}.png", title)
-    results = {
-        label: {
-            "reward": window_means(curves[label], windows, source_sets_of(runs)),
-            "policy_updates": update_counts(runs),
-            "seconds_per_run": float(np.mean([record.seconds for record in runs])),
-            "runs": len(runs),
-        }
-        for label, runs in records.items()
-    }
+    write_curves_figure(out, name, title, curves_of(records), panels, picture)
     data = summary(
         name,
         {**parameters, "methods": [method.parameters() for method in methods]},
         seed,
         time.perf_counter() - started,
-        results=results,
+        results=transfer_results(records, windows),
     )
     write_json(out / f"{name}.json", data)
     return data

@@ -53,6 +53,8 @@ __all__ = [
 
 SOURCE_SET_RULES = ("per_batch", "per_run")
 TABULAR_HEADS = ("tabular", "corners")  # the discrete settings, where ``tabular_unvisited`` applies
+# The heads with a floor on W or N, where ``w_floor`` applies (the linear-posterior heads need none).
+FLOORED_HEADS = ("ridge", *TABULAR_HEADS, "bernstein")
 MAZE_CENTRE = (2.5, 2.5)  # the fixed start: as far from each corner as from the others
 MAZE_R_MAX = 1.0  # the largest expected reward of the maze (eq. 12): 1 in the task's cell
 
@@ -123,15 +125,16 @@ class Protocol:
     def head_kwargs(self, reward_head: str) -> dict[str, Any]:
         """
         The ``reward_head_kwargs`` of a TRLSD model with the named head: the choices that differ from the
-        heads' own defaults, for the heads they apply to (none for the known reward).
+        heads' own defaults, for the heads they apply to (none for the known reward, no ``w_floor`` for the
+        linear-posterior heads, which have no floor).
 
-        :param reward_head: a name of ``REWARD_HEAD_NAMES``
+        :param reward_head: a head name ``TRLSD`` takes
         :return: keyword arguments of ``make_reward_head``
         """
         if reward_head == "known":
             return {}
         kwargs: dict[str, Any] = {}
-        if self.w_floor != DEFAULT_W_FLOOR:
+        if self.w_floor != DEFAULT_W_FLOOR and reward_head in FLOORED_HEADS:
             kwargs["w_floor"] = self.w_floor
         if self.r_max is not None:
             kwargs["r_max"] = self.r_max
@@ -146,7 +149,7 @@ class Protocol:
         Keyword arguments of a ``TRLSD`` model with the named head: ``gamma``, ``first_fit`` and
         ``reward_head_kwargs`` (``head_kwargs``).
 
-        :param reward_head: a name of ``REWARD_HEAD_NAMES``
+        :param reward_head: a head name ``TRLSD`` takes
         """
         return {
             "gamma": self.gamma,

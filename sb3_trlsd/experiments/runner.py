@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import itertools
 import time
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -50,15 +50,19 @@ class Method:
     One curve of a figure: how TRLSD learns the target task.
 
     :param label: name in the plots and files
-    :param reward_head: ``"ridge"`` (continuous), ``"tabular"`` (discrete), ``"corners"`` or ``"known"``
-    :param kappa: optimism (0: non-optimistic)
-    :param sigma: similarity width of the ridge head's W (eq. 8), in the paper's units: maze units for eq. 6
-        (TRLSD takes a fraction of the state box: sigma / 5), feature space for eq. 7
+    :param reward_head: ``"ridge"`` (continuous), ``"tabular"`` (discrete), ``"corners"``, ``"known"``, or a
+        head with another confidence bound: ``"ridge_posterior"`` (OFUL), ``"thompson"``, ``"bernstein"``
+    :param kappa: optimism (0: non-optimistic); the scale of the bonus or of the draws for the other bounds
+    :param sigma: similarity width of the ridge head's W (eq. 8) and of the Bernstein head's weights, in the
+        paper's units: maze units for eq. 6 (TRLSD takes a fraction of the state box: sigma / 5), feature
+        space for eq. 7
     :param similarity: ``"state"`` (eq. 6) or ``"features"`` (eq. 7)
     :param update_ratio: refit when the CI at an encountered state has been divided by this
     :param transfer: start from the random source transitions (False: "no transfer")
     :param policy: the Q-function, a name of ``TRLSD.policy_aliases``: ``"LinearPolicy"`` (the paper's linear
         Q on 5x5 RBFs) or ``"MlpPolicy"``
+    :param reward_head_kwargs: further arguments of the head (e.g. ``reward_range`` of ``"bernstein"``), over
+        the protocol's
     """
 
     label: str
@@ -69,6 +73,7 @@ class Method:
     update_ratio: float = 2.0
     transfer: bool = True
     policy: str = "LinearPolicy"
+    reward_head_kwargs: Mapping[str, Any] = field(default_factory=dict)
 
     def parameters(self) -> dict[str, Any]:
         """The method as a JSON-friendly dict."""
@@ -82,6 +87,8 @@ class Method:
         :param seed: the model's seed
         :param protocol: the choices the paper leaves open (gamma, first fit, the heads' edge cases)
         """
+        settings = protocol.model_kwargs(self.reward_head)
+        settings["reward_head_kwargs"] = {**settings["reward_head_kwargs"], **self.reward_head_kwargs}
         return TRLSD(
             self.policy,
             env,
@@ -91,7 +98,7 @@ class Method:
             similarity=self.similarity,
             update_ratio=self.update_ratio,
             seed=seed,
-            **protocol.model_kwargs(self.reward_head),
+            **settings,
         )
 
 

@@ -53,12 +53,15 @@ __all__ = [
     "aggregate_mean",
     "aggregate_median",
     "improvement_intervals",
+    "independent_bootstrap_ci",
     "interquartile_mean",
     "interval_cell",
+    "mean_ratio",
     "optimality_gap",
     "probability_of_improvement",
     "probability_of_improvement_ci",
     "score_matrix",
+    "scores_by_task",
     "stratified_bootstrap_ci",
 ]
 
@@ -163,6 +166,25 @@ def probability_of_improvement(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     return (u_statistic / (n_x * n_y)).mean(axis=-1)
 
 
+def scores_by_task(scores: np.ndarray, tasks: np.ndarray) -> np.ndarray:
+    """
+    The runs' scores as a score matrix with a column per task, the strata of the bootstrap: (n, n_tasks)
+    when every task has the same n runs (column t: task t's runs in their order, tasks sorted), else the runs
+    as a single stratum (n_runs,).
+
+    :param scores: one score per run, (n_runs,)
+    :param tasks: the task of each run, (n_runs,)
+    :return: (n, n_tasks) or (n_runs,)
+    """
+    scores, tasks = np.asarray(scores, dtype=np.float64), np.asarray(tasks)
+    if scores.shape != tasks.shape or scores.ndim != 1:
+        raise ValueError(f"scores and tasks must be (n_runs,) each, got {scores.shape} and {tasks.shape}")
+    names, counts = np.unique(tasks, return_counts=True)
+    if len(names) < 2 or np.any(counts != counts[0]):
+        return scores
+    return np.stack([scores[tasks == task] for task in names], axis=1)
+
+
 def stratified_bootstrap_ci(
     scores: np.ndarray,
     statistic: Statistic,
@@ -182,7 +204,9 @@ def stratified_bootstrap_ci(
     :param seed: seed of the resamples
     :return: (point, low, high)
     """
-    return _bootstrap(statistic, [_one_matrix(scores, "scores")], reps, confidence, seed)
+    return independent_bootstrap_ci(
+        statistic, [_one_matrix(scores, "scores")], reps=reps, confidence=confidence, seed=seed
+    )
 
 
 def probability_of_improvement_ci(
@@ -207,7 +231,22 @@ def probability_of_improvement_ci(
     x, y = _one_matrix(x, "x"), _one_matrix(y, "y")
     if x.shape[1] != y.shape[1]:
         raise ValueError(f"x and y must have the same tasks (columns), got shapes {x.shape} and {y.shape}")
-    return _bootstrap(probability_of_improvement, [x, y], reps, confidence, seed)
+    return independent_bootstrap_ci(
+        probability_of_improvement, [x, y], reps=reps, confidence=confidence, seed=seed
+    )
+
+
+def mean_ratio(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """
+    The ratio of the aggregate means, mean(X) / mean(Y) (e.g. a method's reward as a fraction of a reference
+    level): infinite or NaN where mean(Y) = 0.
+
+    :param x: (..., n_runs_x, n_tasks) or (n_runs_x,)
+    :param y: (..., n_runs_y, n_tasks_y) or (n_runs_y,), any tasks
+    :return: (...)
+    """
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return aggregate_mean(x) / aggregate_mean(y)
 
 
 def improvement_intervals(
@@ -285,14 +324,27 @@ def _one_matrix(scores: np.ndarray, name: str) -> np.ndarray:
     return scores
 
 
-def _bootstrap(
+def independent_bootstrap_ci(
     statistic: Callable[..., np.ndarray],
     matrices: Sequence[np.ndarray],
-    reps: int,
-    confidence: float,
-    seed: int,
+    *,
+    reps: int = 2_000,
+    confidence: float = 0.95,
+    seed: int = 0,
 ) -> tuple[float, float, float]:
-    """``statistic(*matrices)`` and its percentile interval, each matrix resampled within its columns."""
+    """
+    ``statistic(*matrices)`` and its percentile interval over resamples of each matrix's runs within each of
+    its tasks, independently of the other matrices (rliable's ``StratifiedIndependentBootstrap``; with one
+    matrix, its ``StratifiedBootstrap``). E.g. ``mean_ratio`` of a method's scores and a reference level's.
+
+    :param statistic: maps one batch of resamples of each matrix, (reps, n_runs, n_tasks) each, to (reps,)
+    :param matrices: the score matrices, (n_runs, n_tasks) or (n_runs,) each
+    :param reps: bootstrap resamples
+    :param confidence: probability that the interval covers the statistic, in (0, 1)
+    :param seed: seed of the resamples
+    :return: (point, low, high)
+    """
+    matrices = [_one_matrix(matrix, f"matrices[{index}]") for index, matrix in enumerate(matrices)]
     if not isinstance(reps, (int, np.integer)) or reps < 1:
         raise ValueError(f"reps must be an integer >= 1, got {reps!r}")
     if not 0.0 < confidence < 1.0:
@@ -309,7 +361,8 @@ def _bootstrap(
             )
         estimates.append(batch)
     alpha = (1.0 - confidence) / 2
-    low, high = np.percentile(np.concatenate(estimates), [100 * alpha, 100 * (1 - alpha)])
+    with np.errstate(invalid="ignore"):  # a ratio's estimates may be infinite: its interval then is too
+        low, high = np.percentile(np.concatenate(estimates), [100 * alpha, 100 * (1 - alpha)])
     return float(statistic(*matrices)), float(low), float(high)
 
 

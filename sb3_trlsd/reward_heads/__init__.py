@@ -12,8 +12,7 @@ Reward heads: the optimistic reward proxy R~_tau = R^_tau + CI_tau of one task (
   (OFUL / LinUCB's sqrt(phi^T A^-1 phi), with the determinant-doubling refit rule),
   ``ThompsonRidgeRewardHead`` (posterior sampling of the ridge weights, one draw per refit) and
   ``BernsteinRewardHead`` (UCB-V's empirical-Bernstein bound, kernel-weighted). ``make_reward_head`` builds
-  them by name (``CONFIDENCE_BOUND_HEAD_NAMES``); a TRLSD
-  model takes them as instances.
+  them by name (``CONFIDENCE_BOUND_HEAD_NAMES``); a TRLSD model takes them by name or as instances.
 
 The edge cases (W -> 0, |Xi| <= 1, with the choices a head offers there) are decided in ``base.py``'s
 docstring.
@@ -67,8 +66,8 @@ __all__ = [
 ]
 
 REWARD_HEAD_NAMES = ("ridge", "tabular", "corners", "known")
-# Built by make_reward_head only: TRLSD's settings and builders know REWARD_HEAD_NAMES, and take these heads
-# as instances (their features and widths are not derived from the model's).
+# Heads with other confidence bounds than the paper's; TRLSD builds them by name too (``builders.py``), on its
+# features ("ridge_posterior", "thompson") or with its similarity's width ("bernstein").
 CONFIDENCE_BOUND_HEAD_NAMES = ("ridge_posterior", "thompson", "bernstein")
 DEFAULT_CELLS_PER_DIM = 5  # the paper's 5 x 5 cells of the maze
 

@@ -9,12 +9,12 @@ The maths is in plain functions over arrays (``kernel_reward_sums``, ``kernel_me
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
 from sb3_trlsd.arrays import GrowableArray
-from sb3_trlsd.features import gaussian_similarity
+from sb3_trlsd.features import gaussian_similarity, similarity_widths
 from sb3_trlsd.reward_heads.base import (
     DEFAULT_W_FLOOR,
     RewardHead,
@@ -99,7 +99,8 @@ class BernsteinRewardHead(RewardHead):
     the CI is at most kappa 3 b L / w_floor far from every sample (see ``base.py``).
 
     :param kappa: optimism, >= 0
-    :param sigma: width of the similarity (eq. 6) in state units, > 0
+    :param sigma: width of the similarity (eq. 6) in state units, > 0: one, or one per state dimension (eq. 6
+        then weighs each dimension by its own width, as ``RidgeRewardHead`` does)
     :param reward_range: b, the range of the rewards (UCB-V's rewards lie in [0, b]), > 0; 1 is the range of
         the maze's expected rewards, whose observed rewards carry unbounded Gaussian noise: there b is a
         scale of the second-order term, not a bound
@@ -107,34 +108,36 @@ class BernsteinRewardHead(RewardHead):
     :param r_max: optional cap on R~
     """
 
+    _point_scale: np.ndarray | None = None  # heads saved before per-dimension widths had one width
+
     def __init__(
         self,
         kappa: float = 0.1,
-        sigma: float = 0.2,
+        sigma: float | Sequence[float] | np.ndarray = 0.2,
         reward_range: float = 1.0,
         w_floor: float = DEFAULT_W_FLOOR,
         r_max: float | None = None,
     ):
         super().__init__(kappa, r_max)
-        for name, value, meaning in (
-            ("sigma", sigma, "the width of the similarity, eq. 6"),
-            ("reward_range", reward_range, "b, the range of the rewards"),
-        ):
-            if not (check_positive(name, value, meaning) < np.inf):
-                raise ValueError(f"{name} must be finite ({meaning}), got {value}")
-        self.sigma = float(sigma)
+        if not (check_positive("reward_range", reward_range, "b, the range of the rewards") < np.inf):
+            raise ValueError(f"reward_range must be finite (b, the range of the rewards), got {reward_range}")
+        self.sigma, self._point_scale = similarity_widths(sigma)  # one width, or one per dimension
         self.reward_range = float(reward_range)
         self.w_floor = check_positive("w_floor", w_floor, "the floor of the neighbouring weight W")
-        self._states: GrowableArray | None = None  # s_j, (n, d)
+        self._states: GrowableArray | None = None  # s_j as the similarity compares them, (n, d)
         self._rewards = GrowableArray(1)  # r_j, (n, 1)
 
     def _repr_items(self) -> list[str]:
         return [*super()._repr_items(), f"sigma={self.sigma:g}", f"reward_range={self.reward_range:g}"]
 
+    def _points(self, states: np.ndarray) -> np.ndarray:
+        """The states as the similarity of width ``sigma`` compares them (rescaled for several widths)."""
+        return states if self._point_scale is None else states * self._point_scale
+
     def _update(self, states: np.ndarray, rewards: np.ndarray) -> None:
         if self._states is None:
             self._states = GrowableArray(states.shape[1])
-        self._states.append(states)
+        self._states.append(self._points(states))
         self._rewards.append(rewards)
 
     def reward_sums(self, states: np.ndarray, start: int = 0, stop: int | None = None) -> np.ndarray:
@@ -147,7 +150,7 @@ class BernsteinRewardHead(RewardHead):
         :param stop: end of the samples (exclusive), None for all
         :return: (n, 3)
         """
-        states = np.asarray(states, dtype=np.float64)
+        states = self._points(np.asarray(states, dtype=np.float64))
         sums = np.zeros((len(states), 3))
         if self._states is None:
             return sums

@@ -7,7 +7,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from sb3_trlsd.arrays import GrowableArray
-from sb3_trlsd.features import gaussian_similarity
+from sb3_trlsd.features import gaussian_similarity, similarity_widths
 from sb3_trlsd.reward_heads.base import (
     DEFAULT_W_FLOOR,
     RewardHead,
@@ -57,16 +57,11 @@ class RidgeRewardHead(RewardHead):
         if similarity not in SIMILARITIES:
             raise ValueError(f"similarity must be 'state' (eq. 6) or 'features' (eq. 7), got {similarity!r}")
         self.features = features
-        widths = np.atleast_1d(np.asarray(sigma, dtype=np.float64))
-        if widths.ndim != 1 or not len(widths) or not np.all(np.isfinite(widths)) or not np.all(widths > 0):
-            raise ValueError(f"sigma must be > 0 and finite (the width of the similarity), got {sigma!r}")
-        if len(widths) > 1 and similarity != "state":
+        self.sigma, self._point_scale = similarity_widths(sigma)
+        if np.size(sigma) > 1 and similarity != "state":
             raise ValueError(
                 "one sigma per dimension is for the 'state' similarity; eq. 7's takes one number"
             )
-        self.sigma = float(widths[0])
-        # eq. 6 with per-dimension widths is eq. 6 of width sigma on states rescaled by sigma / width_d.
-        self._point_scale = None if np.all(widths == widths[0]) else widths[0] / widths
         self.similarity = similarity
         self.ridge = check_positive("ridge", ridge, "the Tikhonov regularisation lambda, 1 in the paper")
         self.w_floor = check_positive("w_floor", w_floor, "the floor of the neighbouring weight W")

@@ -1,0 +1,557 @@
+"""
+Beyond the paper (issue 18): eq. 9 against other confidence bounds, each given the same tuning budget, then
+evaluated in Figure 5's setting (the 25 tasks in turn, 25,000 random source transitions, 1,000 online), with
+the linear Q and (``mlp_runs``) the MLP Q, on the paper's maze and on its variant whose reward noise differs
+by cell (``CELL_NOISE_STDS``), where a bound that weighs how much neighbours agree can matter.
+
+The protocol, fixed before any run:
+
+1. Tuning. Each method has a grid of 8 configurations (``GRIDS``); each configuration runs on
+   ``tuning_runs`` runs (100 by default) whose seeds are disjoint from the evaluation's: run r of the tuning
+   has seed ``seed + TUNING_SEED_OFFSET + r`` and its source sets are drawn from that seed
+   (``tuning_seeds``), while evaluation run r has seed ``seed + r``. Every configuration of every method sees
+   the same tuning runs (tasks, source sets, env seeds). The tuning is done on each maze for that maze.
+2. Selection. The metric, fixed in advance: the mean over the tuning runs of each run's expected reward
+   E[R_tau(s_t)] over the last 500 online transitions (``selection_window``), the window of the issue's goal;
+   the highest wins, the first in grid order among equals (``select_configuration``). The MLP Q takes the
+   configuration the linear Q selected: tuning it too would cost 8 x 4 x ``tuning_runs`` MLP runs (~10 s
+   each).
+3. Evaluation. Each method's selected configuration on ``runs`` runs (500, Figure 5's size) with the linear
+   Q, batched in lockstep as Figure 5's runs (20 source sets shared by every method), and on ``mlp_runs``
+   with the MLP Q (one run at a time); the known reward (Figure 1's method, CI = 0) on the same runs with
+   the linear Q is the reference level.
+4. Statistics (``sb3_trlsd.experiments.statistics``, as rliable computes them): for each method the reward
+   over each window as mean +- standard error over the source sets, and the mean and IQM of the runs'
+   window averages with 95% stratified bootstrap intervals (strata: the 25 tasks); over the last 500
+   transitions, the fraction of the known-reward level (of the linear Q on the same maze) and P(method >
+   eq. 9) with their intervals.
+
+Why these grids: every method gets kappa (the scale of its bonus, or of its draws) at four values a factor
+~sqrt(10) apart, a span of 30 around the value where its bonus is about eq. 9's at kappa = 0.1, times the
+update ratio at the paper's two values, 2 and 1.2 (Figure 5); for the linear-posterior heads the ratio is the
+factor det A must grow by, their refit rule. The match was measured on heads fed 20, 100 and 500 samples of
+the maze (half in its corner [0, 2]^2, half uniform): at the samples, OFUL's width sqrt(phi^T A^-1 phi) is
+12-15 times smaller than eq. 9's sqrt(log|Xi| / W), the Bernstein bound 3-5 times larger. Widths stay at the
+paper's (sigma = 0.2 for eq. 9 and Bernstein; the 5x5 RBFs of width 0.2 for the ridge regressions), the
+best of Figure 7.
+
+- eq. 9 (``"ridge"``): kappa in {0.01, 0.03, 0.1, 0.3}, Figure 7's working range (kappa = 1 fails there).
+- OFUL (``"ridge_posterior"``): beta in {0.3, 1, 3, 10}, around 1.2-1.5, the match of eq. 9's 0.1.
+- Thompson (``"thompson"``): the posterior scale v in {0.3, 1, 3, 10}, on OFUL's posterior (the same match);
+  1 is the Bayesian posterior under the maze's unit noise.
+- Bernstein (``"bernstein"``): kappa in {0.003, 0.01, 0.03, 0.1}, around 0.02-0.03, the match of eq. 9's 0.1
+  (UCB-V's own constant, 1, would be 30-50 times eq. 9's optimism).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from sb3_trlsd.experiments.batches import batch_runs, run_source_seed, source_seed, transfer_runs
+from sb3_trlsd.experiments.figures import (
+    curves_of,
+    transfer_results,
+    write_curves_figure,
+    write_improvement_figure,
+)
+from sb3_trlsd.experiments.known_reward import KNOWN
+from sb3_trlsd.experiments.reporting import summary, write_json
+from sb3_trlsd.experiments.reproduction import Reproduction
+from sb3_trlsd.experiments.runner import ONLINE_TRANSITIONS, SOURCE_TRANSITIONS, Method, RunRecord
+from sb3_trlsd.experiments.statistics import (
+    aggregate_intervals,
+    independent_bootstrap_ci,
+    interval_cell,
+    mean_ratio,
+    scores_by_task,
+)
+from sb3_trlsd_envs import CELL_NOISE_STDS, N_TASKS
+
+__all__ = [
+    "GRIDS",
+    "MAZES",
+    "check_sizes",
+    "check_study",
+    "evaluation_seeds",
+    "method_statistics",
+    "reproduce",
+    "select_configuration",
+    "selection_window",
+    "table",
+    "tune",
+    "tuning_seeds",
+    "window_scores",
+]
+
+DEFAULT_RUNS = 500  # evaluation runs per method: Figure 5's size
+DEFAULT_TUNING_RUNS = 100  # tuning runs per configuration (the issue's budget)
+TUNING_SEED_OFFSET = 1_000_000  # tuning run r has seed seed + TUNING_SEED_OFFSET + r
+SELECTION_TRANSITIONS = 500  # the selection metric: the reward over the last 500 online transitions
+UPDATE_RATIOS = (2.0, 1.2)  # the paper's two (Figure 5)
+REFERENCE = "eq. 9"  # the method the others are compared with head to head
+POLICIES = {"linear Q": "LinearPolicy", "MLP Q": "MlpPolicy"}
+# Each maze and the keyword arguments of its env.
+MAZES: dict[str, dict[str, Any]] = {
+    "paper maze": {},
+    "noise by cell": {"reward_noise_std": CELL_NOISE_STDS},
+}
+
+
+def _grid(name: str, reward_head: str, kappas: Sequence[float]) -> tuple[Method, ...]:
+    """The 8 configurations of a method: ``kappas`` times ``UPDATE_RATIOS``."""
+    return tuple(
+        Method(
+            f"{name}, kappa={kappa:g}, ratio {ratio:g}",
+            reward_head=reward_head,
+            kappa=kappa,
+            update_ratio=ratio,
+        )
+        for ratio in UPDATE_RATIOS
+        for kappa in kappas
+    )
+
+
+# Method -> its configurations, in grid order (see the module docstring for why these).
+GRIDS: dict[str, tuple[Method, ...]] = {
+    REFERENCE: _grid(REFERENCE, "ridge", (0.01, 0.03, 0.1, 0.3)),
+    "OFUL": _grid("OFUL", "ridge_posterior", (0.3, 1.0, 3.0, 10.0)),
+    "Thompson": _grid("Thompson", "thompson", (0.3, 1.0, 3.0, 10.0)),
+    "Bernstein": _grid("Bernstein", "bernstein", (0.003, 0.01, 0.03, 0.1)),
+}
+
+
+# ------------------------------------------------------------------------------------------ the protocol
+def check_sizes(runs: int, tuning_runs: int, mlp_runs: int) -> None:
+    """
+    Refuse sizes the protocol cannot take, naming them.
+
+    :raises ValueError: unless runs and tuning_runs are >= 1, mlp_runs >= 0 and at most runs, and the
+        evaluation runs stay below ``TUNING_SEED_OFFSET`` (their seeds would reach the tuning's)
+    """
+    for name, value, minimum in (
+        ("runs", runs, 1),
+        ("tuning_runs", tuning_runs, 1),
+        ("mlp_runs", mlp_runs, 0),
+    ):
+        if not (isinstance(value, (int, np.integer)) and not isinstance(value, bool) and value >= minimum):
+            raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
+    if mlp_runs > runs:
+        raise ValueError(
+            f"mlp_runs must be at most runs ({runs}): the MLP's runs are the first of them, got {mlp_runs}"
+        )
+    if runs > TUNING_SEED_OFFSET:
+        raise ValueError(
+            f"runs must be at most {TUNING_SEED_OFFSET} (further, evaluation seeds would be tuning seeds), "
+            f"got {runs}"
+        )
+
+
+def _seeds(first: int, runs: int, per_run_sources: bool) -> dict[str, list[int]]:
+    """The seeds of ``transfer_runs(..., runs, first, ...)``: of its runs, and of its source sets."""
+    run_seeds = [first + run for run in range(runs)]
+    if per_run_sources:
+        sources = [run_source_seed(seed) for seed in run_seeds]
+    else:
+        sources = [source_seed(first, batch) for batch in range(len(batch_runs(runs)))]
+    return {"runs": run_seeds, "source_sets": sources}
+
+
+def evaluation_seeds(seed: int, runs: int, per_run_sources: bool = False) -> dict[str, list[int]]:
+    """
+    The seeds of the evaluation runs (those of Figure 5 with the same seed): run r's, ``seed + r``, and those
+    of the source sets.
+
+    :param seed: the reproduction's seed
+    :param runs: the evaluation runs per method
+    :param per_run_sources: a source set per run (the protocol's ``source_sets="per_run"``)
+    :return: ``{"runs": [...], "source_sets": [...]}``
+    """
+    return _seeds(seed, runs, per_run_sources)
+
+
+def tuning_seeds(seed: int, tuning_runs: int, per_run_sources: bool = False) -> dict[str, list[int]]:
+    """
+    The seeds of the tuning runs: run r's, ``seed + TUNING_SEED_OFFSET + r``, and those of the source sets
+    drawn from them, disjoint from the evaluation's (``reproduce`` checks it).
+
+    :param seed: the reproduction's seed
+    :param tuning_runs: the tuning runs per configuration
+    :param per_run_sources: a source set per run (the protocol's ``source_sets="per_run"``)
+    :return: ``{"runs": [...], "source_sets": [...]}``
+    """
+    return _seeds(seed + TUNING_SEED_OFFSET, tuning_runs, per_run_sources)
+
+
+def selection_window(n_online: int) -> tuple[int, int]:
+    """The window of the selection metric: the last ``SELECTION_TRANSITIONS`` online transitions (or all)."""
+    return max(0, n_online - SELECTION_TRANSITIONS), n_online
+
+
+def window_scores(records: Sequence[RunRecord], window: tuple[int, int]) -> np.ndarray:
+    """Each run's expected reward averaged over the transitions ``[start, stop)``, (runs,)."""
+    start, stop = window
+    return np.array([record.rewards[start:stop].mean() for record in records])
+
+
+def select_configuration(scores: Mapping[str, float]) -> str:
+    """
+    The configuration with the highest tuning score, the first in order among equals.
+
+    :param scores: configuration label -> its score, in grid order
+    :return: the label
+    """
+    if not scores:
+        raise ValueError("scores must name at least one configuration")
+    return max(scores, key=lambda label: scores[label])  # max keeps the first of equal scores
+
+
+def tune(
+    grids: Mapping[str, Sequence[Method]], records: Mapping[str, Sequence[RunRecord]], window: tuple[int, int]
+) -> dict[str, dict[str, Any]]:
+    """
+    Each method's tuning: the score of each configuration (the mean of its ``window_scores``) and the one
+    selected.
+
+    :param grids: method -> its configurations
+    :param records: configuration label -> its tuning runs
+    :param window: the selection window
+    :return: method -> ``{"scores": {label: score}, "selected": label, "score": its score, "configuration":
+        its parameters}``
+    """
+    tuning = {}
+    for name, configurations in grids.items():
+        scores = {c.label: float(window_scores(records[c.label], window).mean()) for c in configurations}
+        selected = select_configuration(scores)
+        chosen = next(c for c in configurations if c.label == selected)
+        tuning[name] = {
+            "scores": scores,
+            "selected": selected,
+            "score": scores[selected],
+            "configuration": chosen.parameters(),
+        }
+    return tuning
+
+
+def _selected_method(grids: Mapping[str, Sequence[Method]], name: str, label: str, policy: str) -> Method:
+    """The configuration ``label`` of method ``name``, under the method's name, with the given Q."""
+    chosen = next(c for c in grids[name] if c.label == label)
+    return dataclasses.replace(chosen, label=name, policy=policy)
+
+
+# -------------------------------------------------------------------------------------------- statistics
+def method_statistics(
+    records: Sequence[RunRecord],
+    windows: Sequence[tuple[int, int]],
+    window: tuple[int, int],
+    known: Sequence[RunRecord],
+    seed: int,
+) -> dict[str, Any]:
+    """
+    The bootstrap statistics of one method's runs: per window, the mean and IQM of the runs' averages with
+    their 95% stratified intervals (strata: the tasks, ``scores_by_task``); over ``window``, the fraction of
+    the known-reward level with its interval (each side resampled on its own).
+
+    :param records: the method's runs
+    :param windows: the windows of the intervals
+    :param window: the selection window
+    :param known: the known reward's runs, the reference level
+    :param seed: seed of the resamples
+    :return: ``{"intervals": {window: {"IQM": ..., "mean": ...}}, "fraction_of_known": ...}``, intervals as
+        ``{"point", "low", "high"}``
+    """
+    intervals = {
+        f"[{start}, {stop})": aggregate_intervals(
+            _task_scores(records, (start, stop)), ("IQM", "mean"), seed=seed
+        )
+        for start, stop in windows
+    }
+    scores, level = _task_scores(records, window), _task_scores(known, window)
+    fraction = independent_bootstrap_ci(mean_ratio, [scores, level], seed=seed)
+    return {"intervals": intervals, "fraction_of_known": _interval(fraction)}
+
+
+def _task_scores(records: Sequence[RunRecord], window: tuple[int, int]) -> np.ndarray:
+    """The runs' averages over ``window`` as a score matrix, a column per target task."""
+    return scores_by_task(
+        window_scores(records, window), np.array([int(record.tasks[0]) for record in records])
+    )
+
+
+def _interval(values: tuple[float, float, float]) -> dict[str, float | None]:
+    """(point, low, high) as JSON, a value that is not finite (a ratio to a zero level) as None."""
+    return {
+        key: float(value) if np.isfinite(value) else None
+        for key, value in zip(("point", "low", "high"), values, strict=True)
+    }
+
+
+# ------------------------------------------------------------------------------------------- the study
+def check_study(grids: Mapping[str, Sequence[Method]], mazes: Mapping[str, Mapping[str, Any]]) -> None:
+    """
+    Refuse grids without ``REFERENCE``, with an empty method, named as the reference level, or with two
+    configurations of one label (the tuning runs them together), and an empty set of mazes.
+
+    :raises ValueError: saying which
+    """
+    labels = [configuration.label for grid in grids.values() for configuration in grid]
+    if REFERENCE not in grids or any(not grid for grid in grids.values()) or KNOWN.label in grids:
+        raise ValueError(
+            f"grids must give configurations to every method, {REFERENCE!r} included and "
+            f"{KNOWN.label!r} (the reference level) not: got {list(grids)}"
+        )
+    if len(set(labels)) != len(labels):
+        raise ValueError(f"grids must label each configuration its own way, got {labels}")
+    if not mazes:
+        raise ValueError("mazes must name at least one maze")
+
+
+def _disjoint_seeds(how: Reproduction, runs: int, tuning_runs: int) -> dict[str, dict[str, list[int]]]:
+    """The seeds of the evaluation and of the tuning, checked disjoint (runs and source sets)."""
+    per_run = how.protocol.source_sets == "per_run"
+    seeds = {
+        "evaluation": evaluation_seeds(how.seed, runs, per_run),
+        "tuning": tuning_seeds(how.seed, tuning_runs, per_run),
+    }
+    for kind in ("runs", "source_sets"):
+        if not set(seeds["evaluation"][kind]).isdisjoint(seeds["tuning"][kind]):
+            raise ValueError(f"the tuning's {kind} seeds meet the evaluation's: give another seed")
+    return seeds
+
+
+def _write_improvement(
+    out: Path,
+    records: Mapping[str, Sequence[RunRecord]],
+    rows: Sequence[tuple[str, str, str, str]],
+    window: tuple[int, int],
+    seed: int,
+) -> dict[tuple[str, str], tuple[float, float, float]]:
+    """
+    ``beyond_improvement.png``: P(method > eq. 9) of each method with the same maze and Q, over ``window``
+    (nothing when eq. 9 is the only method).
+
+    :param rows: (label, maze, Q, method) of each curve
+    :return: (label, eq. 9's label) -> (point, low, high)
+    """
+    pairs = [
+        (label, _label(maze, policy, REFERENCE))
+        for label, maze, policy, method in rows
+        if method not in (REFERENCE, KNOWN.label)
+    ]
+    if not pairs:
+        return {}
+    return write_improvement_figure(
+        out / "beyond_improvement.png",
+        {label: _task_scores(records[label], window) for label, *_ in rows},
+        pairs,
+        f"P(method > {REFERENCE}) over transitions [{window[0]}, {window[1]}), with 95% stratified "
+        "bootstrap intervals",
+        seed=seed,
+    )
+
+
+def _label(maze: str, policy: str, method: str) -> str:
+    """The name of a curve: ``"<maze>, <Q>: <method>"``."""
+    return f"{maze}, {policy}: {method}"
+
+
+def reproduce(
+    out: Path,
+    how: Reproduction,
+    *,
+    tuning_runs: int = DEFAULT_TUNING_RUNS,
+    mlp_runs: int = 0,
+    grids: Mapping[str, Sequence[Method]] | None = None,
+    mazes: Mapping[str, Mapping[str, Any]] | None = None,
+    n_source: int | None = None,
+    n_online: int | None = None,
+) -> dict:
+    """
+    Tune each method on its grid, evaluate the selected configurations next to the known reward, and write
+    ``beyond.csv`` (the curves), ``beyond.png`` (a panel per maze and Q), ``beyond_improvement.png``
+    (P(method > eq. 9)) and ``beyond.json`` (grids, seeds, tuning, aggregates); see the module docstring.
+
+    :param out: the output directory
+    :param how: evaluation runs per method (default 500), seed, workers, cache, backend and protocol
+    :param tuning_runs: runs per configuration of the tuning
+    :param mlp_runs: evaluation runs per method with the MLP Q (0: none), at most ``runs``
+    :param grids: method -> its configurations, ``REFERENCE`` among them (None: ``GRIDS``)
+    :param mazes: maze name -> the keyword arguments of its env (None: ``MAZES``)
+    :param n_source: random source transitions per run (None: the paper's 25,000)
+    :param n_online: online transitions per run (None: the paper's 1,000)
+    :return: the JSON summary
+    :raises ValueError: for sizes ``check_sizes`` refuses or grids without ``REFERENCE``, before any run
+    """
+    started = time.perf_counter()
+    runs = how.runs_or(DEFAULT_RUNS)
+    check_sizes(runs, tuning_runs, mlp_runs)
+    grids = GRIDS if grids is None else grids
+    mazes = MAZES if mazes is None else mazes
+    check_study(grids, mazes)
+    n_source = SOURCE_TRANSITIONS if n_source is None else n_source
+    n_online = ONLINE_TRANSITIONS if n_online is None else n_online
+    seeds = _disjoint_seeds(how, runs, tuning_runs)
+    window = selection_window(n_online)
+    windows = [(0, max(1, n_online // 10)), (0, n_online), window]  # Figure 5's at the paper's size
+
+    def runs_of(
+        methods: Sequence[Method], count: int, first_seed: int, maze: str
+    ) -> dict[str, list[RunRecord]]:
+        return transfer_runs(
+            methods,
+            range(N_TASKS),
+            count,
+            first_seed,
+            how.workers,
+            n_source=n_source,
+            n_online=n_online,
+            env_kwargs=dict(mazes[maze]),
+            **how.run_options(),
+        )
+
+    tuning: dict[str, dict[str, Any]] = {}
+    records: dict[str, list[RunRecord]] = {}
+    rows: list[tuple[str, str, str, str]] = []  # (label, maze, Q, method) of each curve
+    for maze in mazes:
+        configurations = [configuration for grid in grids.values() for configuration in grid]
+        tuned = runs_of(configurations, tuning_runs, seeds["tuning"]["runs"][0], maze)
+        tuning[maze] = tune(grids, tuned, window)
+        for policy, count in (("linear Q", runs), ("MLP Q", mlp_runs)):
+            if not count:
+                continue
+            methods = [
+                _selected_method(grids, name, tuning[maze][name]["selected"], POLICIES[policy])
+                for name in grids
+            ]
+            if policy == "linear Q":
+                methods.append(KNOWN)  # the reference level
+            found = runs_of(methods, count, how.seed, maze)
+            for method in methods:
+                label = _label(maze, policy, method.label)
+                records[label] = found[method.label]
+                rows.append((label, maze, policy, method.label))
+
+    panels = [
+        (f"{maze}, {policy}", [label for label, m, q, _ in rows if (m, q) == (maze, policy)])
+        for maze, policy in dict.fromkeys((maze, policy) for _, maze, policy, _ in rows)
+    ]
+    write_curves_figure(
+        out,
+        "beyond",
+        f"Beyond the paper: each method tuned on {tuning_runs} runs per configuration, evaluated on {runs}",
+        curves_of(records),
+        panels,
+        legend={label: method for label, _, _, method in rows},
+    )
+    results = transfer_results(records, windows)
+    for label, maze, policy, method in rows:
+        known = records[_label(maze, "linear Q", KNOWN.label)]
+        results[label].update({"maze": maze, "q": policy, "method": method})
+        results[label].update(method_statistics(records[label], windows, window, known, how.seed))
+        if method in tuning[maze]:
+            results[label]["configuration"] = tuning[maze][method]["selected"]
+    files = ["beyond.png", "beyond.csv", "beyond.json"]
+    improvement = _write_improvement(out, records, rows, window, how.seed)
+    if improvement:
+        files.append("beyond_improvement.png")
+    for (label, _), interval in improvement.items():
+        results[label]["p_improvement"] = _interval(interval)
+
+    parameters = {
+        "tasks": "all 25 in turn",
+        "runs": runs,
+        "tuning_runs": tuning_runs,
+        "mlp_runs": mlp_runs,
+        "n_source": n_source,
+        "n_online": n_online,
+        "mazes": {maze: dict(kwargs) for maze, kwargs in mazes.items()},
+        "selection": {
+            "metric": "mean over the tuning runs of the expected reward over the last "
+            f"{SELECTION_TRANSITIONS} online transitions; the first in grid order among equals",
+            "window": f"[{window[0]}, {window[1]})",
+            "mlp": "the configuration the linear Q selected",
+        },
+        "reference": REFERENCE,
+        "fraction_of_known": "mean over the selection window as a fraction of the known reward's (linear Q, "
+        "same maze and runs)",
+        "strata": "the target tasks (one column each when they have equal runs, else the runs as one)",
+        "seeds": {
+            kind: {
+                "first_run": found["runs"][0],
+                "last_run": found["runs"][-1],
+                "source_sets": found["source_sets"],
+            }
+            for kind, found in seeds.items()
+        },
+        **how.recorded(),
+    }
+    data = summary(
+        "beyond",
+        parameters,
+        how.seed,
+        time.perf_counter() - started,
+        grids={name: [configuration.parameters() for configuration in grid] for name, grid in grids.items()},
+        tuning=tuning,
+        results=results,
+        files=[str(out / name) for name in files],
+    )
+    write_json(out / "beyond.json", data)
+    return data
+
+
+def _cell(interval: Mapping[str, float | None] | None) -> str:
+    if not interval or interval["point"] is None:
+        return ""
+    if interval["low"] is None or interval["high"] is None:
+        return f"{interval['point']:.3f}"
+    return interval_cell(interval["point"], interval["low"], interval["high"])
+
+
+def table(data: Mapping[str, Any]) -> str:
+    """
+    The study's JSON as a Markdown table: a row per maze, Q and method, over the selection window.
+
+    :param data: ``reproduce``'s summary
+    :return: the table
+    """
+    window = data["parameters"]["selection"]["window"]
+    columns = [
+        "maze, Q",
+        "method",
+        "selected configuration",
+        "tuning score",
+        f"reward {window}",
+        "mean [95% CI]",
+        "IQM [95% CI]",
+        "fraction of known",
+        f"P(X > {REFERENCE}) [95% CI]",
+        "policy updates",
+        "seconds per run",
+        "runs",
+    ]
+    lines = ["| " + " | ".join(columns) + " |", "|---" * len(columns) + "|"]
+    for entry in data["results"].values():
+        tuned = data["tuning"][entry["maze"]].get(entry["method"])
+        reward = entry["reward"][window]
+        intervals = entry["intervals"][window]
+        cells = [
+            f"{entry['maze']}, {entry['q']}",
+            entry["method"],
+            entry.get("configuration", ""),
+            "" if tuned is None else f"{tuned['score']:.3f}",
+            f"{reward['mean']:.3f} ± {reward['se']:.3f}",
+            _cell(intervals["mean"]),
+            _cell(intervals["IQM"]),
+            _cell(entry["fraction_of_known"]),
+            _cell(entry.get("p_improvement")),
+            f"{entry['policy_updates']['mean']:.1f}",
+            f"{entry['seconds_per_run']:.3g}",
+            str(entry["runs"]),
+        ]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
