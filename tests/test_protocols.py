@@ -115,17 +115,38 @@ def tiny_transfer_batch(method: Method, protocol: Protocol, **kwargs) -> list:
 
 
 # ----------------------------------------------------------------------------------------- the registry
-def test_every_preset_but_today_s_is_one_change_from_it():
+def test_every_preset_but_today_s_is_one_change_from_it_or_a_named_combination_of_them():
     """A preset that changed two choices (or none) would confound the study's one-change comparisons."""
     assert PRESETS[DEFAULT_PROTOCOL].protocol == AS_BUILT == Protocol()
     for name, entry in PRESETS.items():
         assert entry.name == name and entry.changes and entry.why
-        if name != DEFAULT_PROTOCOL:
+        if entry.combines:
+            assert all(not PRESETS[part].combines for part in entry.combines)
+            parts = [changed_fields(PRESETS[part].protocol) for part in entry.combines]
+            assert all(len(changes) == 1 for changes in parts)
+            assert changed_fields(entry.protocol) == {k: v for changes in parts for k, v in changes.items()}
+        elif name != DEFAULT_PROTOCOL:
             assert len(changed_fields(entry.protocol)) == 1, name
     assert len({entry.protocol for entry in PRESETS.values()}) == len(PRESETS)
     # Every choice has at least one alternative preset.
     changed = {field for entry in PRESETS.values() for field in changed_fields(entry.protocol)}
     assert changed == {field.name for field in dataclasses.fields(Protocol)} - {"w_floor"}
+
+
+def test_a_combination_runs_each_figure_as_the_single_change_that_reaches_it():
+    """'no-restarts' transfers as 'no-online-restarts' and multi-tasks as 'multitask-continue' (the README's
+    study reads its columns from those runs)."""
+    combination = preset("no-restarts")
+    assert outcome(tiny_transfer_batch(CONTINUOUS, combination)) == outcome(
+        tiny_transfer_batch(CONTINUOUS, preset("no-online-restarts"))
+    )
+    assert outcome(tiny_transfer_batch(CONTINUOUS, combination)) != outcome(
+        tiny_transfer_batch(CONTINUOUS, AS_BUILT)
+    )
+    tiny = {"n_turns": 2, "episode_steps": 6}
+    assert outcome(multitask_batch(CONTINUOUS, (3,), protocol=combination, **tiny)) == outcome(
+        multitask_batch(CONTINUOUS, (3,), protocol=preset("multitask-continue"), **tiny)
+    )
 
 
 def test_today_s_protocol_is_the_code_s_own_defaults():

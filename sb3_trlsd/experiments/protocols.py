@@ -24,7 +24,8 @@ The choices, with the options a careful reader of the paper could defend (today'
 8. R~ of an unvisited cell in the discrete setting (``tabular_unvisited``): eq. 10 with the count floored
    (an unvisited cell outranks every visited one), or a value, R-MAX's R_max = 1.
 
-Presets: today's choices (``"as-built"``, the default) and one preset per single change from them. A
+Presets: today's choices (``"as-built"``, the default), one preset per single change from them, and the
+study's best-supported combination (``"no-restarts"``: the online phases without restarts). A
 ``Protocol`` is passed explicitly down to the envs and models a figure builds (``runner.Method.make_model``,
 ``batches.transfer_batch``, ``runner.multitask_env``); the run cache keys on it, as on every argument of a
 run, and a figure's JSON records it (``protocol_record``).
@@ -171,12 +172,16 @@ class Preset:
     :param protocol: its choices
     :param changes: what it changes from today's protocol
     :param why: why a careful reader of the paper could defend it
+    :param combines: for a combination of single changes, the presets whose choices it takes (each choice
+        reaching other figures than the others', a combination's runs of a figure are those of the preset
+        that reaches it: ``tests/test_protocols.py``)
     """
 
     name: str
     protocol: Protocol
     changes: str
     why: str
+    combines: tuple[str, ...] = ()
 
 
 PRESETS: dict[str, Preset] = {
@@ -252,6 +257,16 @@ PRESETS: dict[str, Preset] = {
             Protocol(source_sets="per_run"),
             "every transfer run draws a source set of its own (standard errors over runs)",
             "'500 independent runs' (Figure 5), each 'first' generating its 25,000 transitions",
+        ),
+        Preset(
+            "no-restarts",
+            Protocol(online_termination_prob=0.0, multitask_start="continue"),
+            "no restart in any online phase: a transfer run's 1,000 transitions are one trajectory, and each "
+            "multi-task trajectory starts where that task's previous one ended",
+            "the study's best-supported reading (README, 'What the paper's claims depend on'): the two "
+            "single changes that bring the paper's orderings back in Figures 5-8, read together; neither "
+            "restart is stated for an online phase",
+            combines=("no-online-restarts", "multitask-continue"),
         ),
         Preset(
             "tabular-unvisited-r-max",
