@@ -200,7 +200,9 @@ def test_an_interrupt_cancels_the_tasks_on_the_cluster(driver, tmp_path):
     A driver that lives on (a notebook's Ctrl-C) must not leave its tasks running for seconds on the
     cluster, nor wait for them: RunsInterrupted at once, and no task of it left within 2 s.
     """
-    jobs = [((multitask.METHODS[1], seed, 4, 50), {}) for seed in range(6)]  # about 10 s each
+    # Full Figure 8 runs, ~8 s each: long enough that a task is surely seen running before they end (4 turns,
+    # ~2 s since the solver got faster, sometimes all ended first on an idle machine).
+    jobs = [((multitask.METHODS[1], seed, 20, 50), {}) for seed in range(6)]
     interrupted_at: list[float] = []
 
     def interrupt_once_a_task_runs() -> None:
