@@ -53,7 +53,7 @@ from typing import Any
 
 import numpy as np
 
-from sb3_trlsd.experiments.batches import batch_runs, run_source_seed, source_seed, transfer_runs
+from sb3_trlsd.experiments.batches import transfer_runs
 from sb3_trlsd.experiments.figures import (
     curves_of,
     transfer_results,
@@ -71,11 +71,26 @@ from sb3_trlsd.experiments.statistics import (
     mean_ratio,
     scores_by_task,
 )
+from sb3_trlsd.experiments.tuning import (
+    DEFAULT_RUNS,
+    DEFAULT_TUNING_RUNS,
+    GRIDS,
+    REFERENCE,
+    SELECTION_TRANSITIONS,
+    TUNING_SEED_OFFSET,
+    check_sizes,
+    evaluation_seeds,
+    select_configuration,
+    selection_window,
+    tuning_seeds,
+    window_scores,
+)
 from sb3_trlsd_envs import CELL_NOISE_STDS, N_TASKS
 
 __all__ = [
     "GRIDS",
     "MAZES",
+    "TUNING_SEED_OFFSET",
     "check_sizes",
     "check_study",
     "evaluation_seeds",
@@ -89,12 +104,6 @@ __all__ = [
     "window_scores",
 ]
 
-DEFAULT_RUNS = 500  # evaluation runs per method: Figure 5's size
-DEFAULT_TUNING_RUNS = 100  # tuning runs per configuration (the issue's budget)
-TUNING_SEED_OFFSET = 1_000_000  # tuning run r has seed seed + TUNING_SEED_OFFSET + r
-SELECTION_TRANSITIONS = 500  # the selection metric: the reward over the last 500 online transitions
-UPDATE_RATIOS = (2.0, 1.2)  # the paper's two (Figure 5)
-REFERENCE = "eq. 9"  # the method the others are compared with head to head
 POLICIES = {"linear Q": "LinearPolicy", "MLP Q": "MlpPolicy"}
 # Each maze and the keyword arguments of its env.
 MAZES: dict[str, dict[str, Any]] = {
@@ -103,114 +112,7 @@ MAZES: dict[str, dict[str, Any]] = {
 }
 
 
-def _grid(name: str, reward_head: str, kappas: Sequence[float]) -> tuple[Method, ...]:
-    """The 8 configurations of a method: ``kappas`` times ``UPDATE_RATIOS``."""
-    return tuple(
-        Method(
-            f"{name}, kappa={kappa:g}, ratio {ratio:g}",
-            reward_head=reward_head,
-            kappa=kappa,
-            update_ratio=ratio,
-        )
-        for ratio in UPDATE_RATIOS
-        for kappa in kappas
-    )
-
-
-# Method -> its configurations, in grid order (see the module docstring for why these).
-GRIDS: dict[str, tuple[Method, ...]] = {
-    REFERENCE: _grid(REFERENCE, "ridge", (0.01, 0.03, 0.1, 0.3)),
-    "OFUL": _grid("OFUL", "ridge_posterior", (0.3, 1.0, 3.0, 10.0)),
-    "Thompson": _grid("Thompson", "thompson", (0.3, 1.0, 3.0, 10.0)),
-    "Bernstein": _grid("Bernstein", "bernstein", (0.003, 0.01, 0.03, 0.1)),
-}
-
-
 # ------------------------------------------------------------------------------------------ the protocol
-def check_sizes(runs: int, tuning_runs: int, mlp_runs: int) -> None:
-    """
-    Refuse sizes the protocol cannot take, naming them.
-
-    :raises ValueError: unless runs and tuning_runs are >= 1, mlp_runs >= 0 and at most runs, and the
-        evaluation runs stay below ``TUNING_SEED_OFFSET`` (their seeds would reach the tuning's)
-    """
-    for name, value, minimum in (
-        ("runs", runs, 1),
-        ("tuning_runs", tuning_runs, 1),
-        ("mlp_runs", mlp_runs, 0),
-    ):
-        if not (isinstance(value, (int, np.integer)) and not isinstance(value, bool) and value >= minimum):
-            raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
-    if mlp_runs > runs:
-        raise ValueError(
-            f"mlp_runs must be at most runs ({runs}): the MLP's runs are the first of them, got {mlp_runs}"
-        )
-    if runs > TUNING_SEED_OFFSET:
-        raise ValueError(
-            f"runs must be at most {TUNING_SEED_OFFSET} (further, evaluation seeds would be tuning seeds), "
-            f"got {runs}"
-        )
-
-
-def _seeds(first: int, runs: int, per_run_sources: bool) -> dict[str, list[int]]:
-    """The seeds of ``transfer_runs(..., runs, first, ...)``: of its runs, and of its source sets."""
-    run_seeds = [first + run for run in range(runs)]
-    if per_run_sources:
-        sources = [run_source_seed(seed) for seed in run_seeds]
-    else:
-        sources = [source_seed(first, batch) for batch in range(len(batch_runs(runs)))]
-    return {"runs": run_seeds, "source_sets": sources}
-
-
-def evaluation_seeds(seed: int, runs: int, per_run_sources: bool = False) -> dict[str, list[int]]:
-    """
-    The seeds of the evaluation runs (those of Figure 5 with the same seed): run r's, ``seed + r``, and those
-    of the source sets.
-
-    :param seed: the reproduction's seed
-    :param runs: the evaluation runs per method
-    :param per_run_sources: a source set per run (the protocol's ``source_sets="per_run"``)
-    :return: ``{"runs": [...], "source_sets": [...]}``
-    """
-    return _seeds(seed, runs, per_run_sources)
-
-
-def tuning_seeds(seed: int, tuning_runs: int, per_run_sources: bool = False) -> dict[str, list[int]]:
-    """
-    The seeds of the tuning runs: run r's, ``seed + TUNING_SEED_OFFSET + r``, and those of the source sets
-    drawn from them, disjoint from the evaluation's (``reproduce`` checks it).
-
-    :param seed: the reproduction's seed
-    :param tuning_runs: the tuning runs per configuration
-    :param per_run_sources: a source set per run (the protocol's ``source_sets="per_run"``)
-    :return: ``{"runs": [...], "source_sets": [...]}``
-    """
-    return _seeds(seed + TUNING_SEED_OFFSET, tuning_runs, per_run_sources)
-
-
-def selection_window(n_online: int) -> tuple[int, int]:
-    """The window of the selection metric: the last ``SELECTION_TRANSITIONS`` online transitions (or all)."""
-    return max(0, n_online - SELECTION_TRANSITIONS), n_online
-
-
-def window_scores(records: Sequence[RunRecord], window: tuple[int, int]) -> np.ndarray:
-    """Each run's expected reward averaged over the transitions ``[start, stop)``, (runs,)."""
-    start, stop = window
-    return np.array([record.rewards[start:stop].mean() for record in records])
-
-
-def select_configuration(scores: Mapping[str, float]) -> str:
-    """
-    The configuration with the highest tuning score, the first in order among equals.
-
-    :param scores: configuration label -> its score, in grid order
-    :return: the label
-    """
-    if not scores:
-        raise ValueError("scores must name at least one configuration")
-    return max(scores, key=lambda label: scores[label])  # max keeps the first of equal scores
-
-
 def tune(
     grids: Mapping[str, Sequence[Method]], records: Mapping[str, Sequence[RunRecord]], window: tuple[int, int]
 ) -> dict[str, dict[str, Any]]:
