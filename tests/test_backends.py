@@ -86,6 +86,9 @@ def running_tasks(cluster: Cluster) -> list[int]:
     ]
 
 
+RAY_INTERNAL_ABORT = "You have likely discovered a bug in Ray"
+
+
 def wait_for(condition: Callable[[], bool], seconds: float) -> bool:
     deadline = time.monotonic() + seconds
     while not condition() and time.monotonic() < deadline:
@@ -185,9 +188,15 @@ def test_a_ray_reproduction_writes_the_csv_of_loky(cluster, tmp_path, monkeypatc
 )
 def test_an_interrupted_ray_reproduction_says_what_it_kept(cluster, tmp_path, signum, to_group):
     """Ray must not take over the command's signals: the same status and message as with loky."""
-    out = tmp_path / "interrupted"
     options = ["--backend", "ray", "--address", cluster.address]
-    status, error = interrupt_reproduce(out, signum, to_group, options=options, env=cluster.env)
+    for attempt in range(2):
+        out = tmp_path / f"interrupted-{attempt}"
+        status, error = interrupt_reproduce(out, signum, to_group, options=options, env=cluster.env)
+        # Ray's core worker sometimes aborts on a task cancelled as its reply arrives ("Check failed: ...
+        # Tried to complete task that was not pending", its own words below): an upstream bug, not ours,
+        # about 1 run in 6 here. Only that abort earns a second attempt.
+        if RAY_INTERNAL_ABORT not in error:
+            break
     assert status == 128 + signum, error
     assert_says_what_it_kept(error, out)
     assert wait_for(lambda: not running_tasks(cluster), 5), "tasks of the command still run on the cluster"
