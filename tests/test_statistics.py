@@ -1,6 +1,7 @@
 """
-The aggregates and intervals of ``sb3_trlsd.experiments.statistics`` against rliable's definitions: closed
-forms and hand counts, the coverage of the stratified bootstrap, and the tables and figure built on them.
+The aggregates of ``sb3_trlsd.experiments.statistics`` and the intervals of ``bootstrap`` against rliable's
+definitions: closed forms and hand counts, the coverage of the stratified bootstrap, and the tables and
+figure built on them.
 """
 
 import numpy as np
@@ -8,22 +9,24 @@ import pytest
 import scipy.stats
 from matplotlib.image import imread
 
-from sb3_trlsd.experiments import statistics
+from sb3_trlsd.experiments import bootstrap
+from sb3_trlsd.experiments.bootstrap import (
+    aggregate_intervals,
+    independent_bootstrap_ci,
+    interval_cell,
+    probability_of_improvement_ci,
+    stratified_bootstrap_ci,
+)
 from sb3_trlsd.experiments.figures import write_improvement_figure
 from sb3_trlsd.experiments.reporting import intervals_table, window_intervals, window_means
 from sb3_trlsd.experiments.statistics import (
-    aggregate_intervals,
     aggregate_mean,
     aggregate_median,
-    independent_bootstrap_ci,
     interquartile_mean,
-    interval_cell,
     mean_ratio,
     optimality_gap,
     probability_of_improvement,
-    probability_of_improvement_ci,
     scores_by_task,
-    stratified_bootstrap_ci,
 )
 
 
@@ -146,7 +149,7 @@ def test_bootstrap_draws_every_resample_once_in_batches(monkeypatch):
     stratified_bootstrap_ci(scores, counting_mean, reps=2_000)
     assert sizes == [(2_000,), ()]  # the resamples, then the point estimate
     sizes.clear()
-    monkeypatch.setattr(statistics, "CHUNK_ELEMENTS", 500 * 300)
+    monkeypatch.setattr(bootstrap, "CHUNK_ELEMENTS", 500 * 300)
     stratified_bootstrap_ci(scores, counting_mean, reps=2_000)
     assert sizes == [(300,)] * 6 + [(200,), ()]
 
@@ -279,7 +282,7 @@ def test_improvement_figure_writes_a_png(tmp_path):
             id="unknown aggregate",
         ),
         pytest.param(
-            lambda: statistics.improvement_intervals({"a": np.ones(3)}, [("a", "b")]),
+            lambda: bootstrap.improvement_intervals({"a": np.ones(3)}, [("a", "b")]),
             "does not have",
             id="unknown method",
         ),

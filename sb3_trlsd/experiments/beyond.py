@@ -20,7 +20,7 @@ The protocol, fixed before any run:
    Q, batched in lockstep as Figure 5's runs (20 source sets shared by every method), and on ``mlp_runs``
    with the MLP Q (one run at a time); the known reward (Figure 1's method, CI = 0) on the same runs with
    the linear Q is the reference level.
-4. Statistics (``sb3_trlsd.experiments.statistics``, as rliable computes them): for each method the reward
+4. Statistics (``statistics.py`` and ``bootstrap.py``, as rliable computes them): for each method the reward
    over each window as mean +- standard error over the source sets, and the mean and IQM of the runs'
    window averages with 95% stratified bootstrap intervals (strata: the 25 tasks); over the last 500
    transitions, the fraction of the known-reward level (of the linear Q on the same maze) and P(method >
@@ -54,6 +54,7 @@ from typing import Any
 import numpy as np
 
 from sb3_trlsd.experiments.batches import transfer_runs
+from sb3_trlsd.experiments.bootstrap import aggregate_intervals, independent_bootstrap_ci, interval_cell
 from sb3_trlsd.experiments.figures import (
     curves_of,
     transfer_results,
@@ -64,13 +65,7 @@ from sb3_trlsd.experiments.known_reward import KNOWN
 from sb3_trlsd.experiments.reporting import summary, write_json
 from sb3_trlsd.experiments.reproduction import Reproduction
 from sb3_trlsd.experiments.runner import ONLINE_TRANSITIONS, SOURCE_TRANSITIONS, Method, RunRecord
-from sb3_trlsd.experiments.statistics import (
-    aggregate_intervals,
-    independent_bootstrap_ci,
-    interval_cell,
-    mean_ratio,
-    scores_by_task,
-)
+from sb3_trlsd.experiments.statistics import mean_ratio, scores_by_task
 from sb3_trlsd.experiments.tuning import (
     DEFAULT_RUNS,
     DEFAULT_TUNING_RUNS,

@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from sb3_trlsd.experiments.bootstrap import improvement_intervals
 from sb3_trlsd.experiments.reporting import (
     mean_and_standard_error,
     plot_curves,
@@ -21,7 +22,6 @@ from sb3_trlsd.experiments.reporting import (
     write_json,
 )
 from sb3_trlsd.experiments.runner import Method, RunRecord, Snapshot
-from sb3_trlsd.experiments.statistics import improvement_intervals
 from sb3_trlsd_envs import task_cell
 from sb3_trlsd_envs.dynamics import DEFAULT_WALLS
 
@@ -90,7 +90,7 @@ def write_improvement_figure(
 ) -> dict[tuple[str, str], tuple[float, float, float]]:
     """
     Write a PNG of P(X > Y) for head-to-head comparisons, with stratified bootstrap intervals, as rliable
-    draws them (``statistics.improvement_intervals``, ``reporting.plot_probability_of_improvement``).
+    draws them (``bootstrap.improvement_intervals``, ``reporting.plot_probability_of_improvement``).
 
     :param path: the PNG file
     :param scores: method -> (runs, tasks) or (runs,) scores, e.g. each run's average reward over a window

@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from sb3_trlsd.experiments.statistics import aggregate_intervals, interval_cell
+from sb3_trlsd.experiments.bootstrap import aggregate_intervals, interval_cell
 from sb3_trlsd.version import __version__
 
 __all__ = [
@@ -102,7 +102,7 @@ def window_intervals(
     """
     Table cells of each window: the mean ± standard error of ``window_means`` next to the mean and the IQM
     of the runs' averages over the window, with their stratified bootstrap intervals as rliable computes
-    them (``statistics.aggregate_intervals``; the bootstrap resamples runs, not source sets).
+    them (``bootstrap.aggregate_intervals``; the bootstrap resamples runs, not source sets).
 
     :param values: (runs, steps)
     :param windows: ``(start, stop)`` pairs
@@ -245,7 +245,7 @@ def plot_probability_of_improvement(
     draws it (in matplotlib's color cycle rather than seaborn's colorblind palette).
 
     :param ax: matplotlib Axes
-    :param intervals: (X, Y) -> (point, low, high), e.g. from ``statistics.improvement_intervals``
+    :param intervals: (X, Y) -> (point, low, high), e.g. from ``bootstrap.improvement_intervals``
     :param xlabel: x axis label
     :param colors: one matplotlib color per pair (default: cycle)
     """
