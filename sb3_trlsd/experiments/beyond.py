@@ -20,11 +20,11 @@ The protocol, fixed before any run:
    Q, batched in lockstep as Figure 5's runs (20 source sets shared by every method), and on ``mlp_runs``
    with the MLP Q (one run at a time); the known reward (Figure 1's method, CI = 0) on the same runs with
    the linear Q is the reference level.
-4. Statistics (``statistics.py`` and ``bootstrap.py``, as rliable computes them): for each method the reward
-   over each window as mean +- standard error over the source sets, and the mean and IQM of the runs'
-   window averages with 95% stratified bootstrap intervals (strata: the 25 tasks); over the last 500
-   transitions, the fraction of the known-reward level (of the linear Q on the same maze) and P(method >
-   eq. 9) with their intervals.
+4. Statistics (``beyond_report.py``, with ``statistics.py`` and ``bootstrap.py``, as rliable computes
+   them): for each method the reward over each window as mean +- standard error over the source sets, and
+   the mean and IQM of the runs' window averages with 95% stratified bootstrap intervals (strata: the 25
+   tasks); over the last 500 transitions, the fraction of the known-reward level (of the linear Q on the
+   same maze) and P(method > eq. 9) with their intervals.
 
 Why these grids: every method gets kappa (the scale of its bonus, or of its draws) at four values a factor
 ~sqrt(10) apart, a span of 30 around the value where its bonus is about eq. 9's at kappa = 0.1, times the
@@ -51,21 +51,13 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from sb3_trlsd.experiments.batches import transfer_runs
-from sb3_trlsd.experiments.bootstrap import aggregate_intervals, independent_bootstrap_ci, interval_cell
-from sb3_trlsd.experiments.figures import (
-    curves_of,
-    transfer_results,
-    write_curves_figure,
-    write_improvement_figure,
-)
+from sb3_trlsd.experiments.beyond_report import Curve, curve_label, study_results, table
+from sb3_trlsd.experiments.figures import curves_of, write_curves_figure
 from sb3_trlsd.experiments.known_reward import KNOWN
 from sb3_trlsd.experiments.reporting import summary, write_json
 from sb3_trlsd.experiments.reproduction import Reproduction
 from sb3_trlsd.experiments.runner import ONLINE_TRANSITIONS, SOURCE_TRANSITIONS, Method, RunRecord
-from sb3_trlsd.experiments.statistics import mean_ratio, scores_by_task
 from sb3_trlsd.experiments.tuning import (
     DEFAULT_RUNS,
     DEFAULT_TUNING_RUNS,
@@ -82,6 +74,7 @@ from sb3_trlsd.experiments.tuning import (
 )
 from sb3_trlsd_envs import CELL_NOISE_STDS, N_TASKS
 
+# ``table`` is beyond_report.py's, named here by the ``STUDIES`` registry.
 __all__ = [
     "GRIDS",
     "MAZES",
@@ -89,7 +82,6 @@ __all__ = [
     "check_sizes",
     "check_study",
     "evaluation_seeds",
-    "method_statistics",
     "reproduce",
     "select_configuration",
     "selection_window",
@@ -141,53 +133,6 @@ def _selected_method(grids: Mapping[str, Sequence[Method]], name: str, label: st
     return dataclasses.replace(chosen, label=name, policy=policy)
 
 
-# -------------------------------------------------------------------------------------------- statistics
-def method_statistics(
-    records: Sequence[RunRecord],
-    windows: Sequence[tuple[int, int]],
-    window: tuple[int, int],
-    known: Sequence[RunRecord],
-    seed: int,
-) -> dict[str, Any]:
-    """
-    The bootstrap statistics of one method's runs: per window, the mean and IQM of the runs' averages with
-    their 95% stratified intervals (strata: the tasks, ``scores_by_task``); over ``window``, the fraction of
-    the known-reward level with its interval (each side resampled on its own).
-
-    :param records: the method's runs
-    :param windows: the windows of the intervals
-    :param window: the selection window
-    :param known: the known reward's runs, the reference level
-    :param seed: seed of the resamples
-    :return: ``{"intervals": {window: {"IQM": ..., "mean": ...}}, "fraction_of_known": ...}``, intervals as
-        ``{"point", "low", "high"}``
-    """
-    intervals = {
-        f"[{start}, {stop})": aggregate_intervals(
-            _task_scores(records, (start, stop)), ("IQM", "mean"), seed=seed
-        )
-        for start, stop in windows
-    }
-    scores, level = _task_scores(records, window), _task_scores(known, window)
-    fraction = independent_bootstrap_ci(mean_ratio, [scores, level], seed=seed)
-    return {"intervals": intervals, "fraction_of_known": _interval(fraction)}
-
-
-def _task_scores(records: Sequence[RunRecord], window: tuple[int, int]) -> np.ndarray:
-    """The runs' averages over ``window`` as a score matrix, a column per target task."""
-    return scores_by_task(
-        window_scores(records, window), np.array([int(record.tasks[0]) for record in records])
-    )
-
-
-def _interval(values: tuple[float, float, float]) -> dict[str, float | None]:
-    """(point, low, high) as JSON, a value that is not finite (a ratio to a zero level) as None."""
-    return {
-        key: float(value) if np.isfinite(value) else None
-        for key, value in zip(("point", "low", "high"), values, strict=True)
-    }
-
-
 # ------------------------------------------------------------------------------------------- the study
 def check_study(grids: Mapping[str, Sequence[Method]], mazes: Mapping[str, Mapping[str, Any]]) -> None:
     """
@@ -219,42 +164,6 @@ def _disjoint_seeds(how: Reproduction, runs: int, tuning_runs: int) -> dict[str,
         if not set(seeds["evaluation"][kind]).isdisjoint(seeds["tuning"][kind]):
             raise ValueError(f"the tuning's {kind} seeds meet the evaluation's: give another seed")
     return seeds
-
-
-def _write_improvement(
-    out: Path,
-    records: Mapping[str, Sequence[RunRecord]],
-    rows: Sequence[tuple[str, str, str, str]],
-    window: tuple[int, int],
-    seed: int,
-) -> dict[tuple[str, str], tuple[float, float, float]]:
-    """
-    ``beyond_improvement.png``: P(method > eq. 9) of each method with the same maze and Q, over ``window``
-    (nothing when eq. 9 is the only method).
-
-    :param rows: (label, maze, Q, method) of each curve
-    :return: (label, eq. 9's label) -> (point, low, high)
-    """
-    pairs = [
-        (label, _label(maze, policy, REFERENCE))
-        for label, maze, policy, method in rows
-        if method not in (REFERENCE, KNOWN.label)
-    ]
-    if not pairs:
-        return {}
-    return write_improvement_figure(
-        out / "beyond_improvement.png",
-        {label: _task_scores(records[label], window) for label, *_ in rows},
-        pairs,
-        f"P(method > {REFERENCE}) over transitions [{window[0]}, {window[1]}), with 95% stratified "
-        "bootstrap intervals",
-        seed=seed,
-    )
-
-
-def _label(maze: str, policy: str, method: str) -> str:
-    """The name of a curve: ``"<maze>, <Q>: <method>"``."""
-    return f"{maze}, {policy}: {method}"
 
 
 def reproduce(
@@ -313,7 +222,7 @@ def reproduce(
 
     tuning: dict[str, dict[str, Any]] = {}
     records: dict[str, list[RunRecord]] = {}
-    rows: list[tuple[str, str, str, str]] = []  # (label, maze, Q, method) of each curve
+    rows: list[Curve] = []  # (label, maze, Q, method) of each curve
     for maze in mazes:
         configurations = [configuration for grid in grids.values() for configuration in grid]
         tuned = runs_of(configurations, tuning_runs, seeds["tuning"]["runs"][0], maze)
@@ -329,7 +238,7 @@ def reproduce(
                 methods.append(KNOWN)  # the reference level
             found = runs_of(methods, count, how.seed, maze)
             for method in methods:
-                label = _label(maze, policy, method.label)
+                label = curve_label(maze, policy, method.label)
                 records[label] = found[method.label]
                 rows.append((label, maze, policy, method.label))
 
@@ -345,19 +254,8 @@ def reproduce(
         panels,
         legend={label: method for label, _, _, method in rows},
     )
-    results = transfer_results(records, windows)
-    for label, maze, policy, method in rows:
-        known = records[_label(maze, "linear Q", KNOWN.label)]
-        results[label].update({"maze": maze, "q": policy, "method": method})
-        results[label].update(method_statistics(records[label], windows, window, known, how.seed))
-        if method in tuning[maze]:
-            results[label]["configuration"] = tuning[maze][method]["selected"]
-    files = ["beyond.png", "beyond.csv", "beyond.json"]
-    improvement = _write_improvement(out, records, rows, window, how.seed)
-    if improvement:
-        files.append("beyond_improvement.png")
-    for (label, _), interval in improvement.items():
-        results[label]["p_improvement"] = _interval(interval)
+    results, figures = study_results(out, records, rows, tuning, windows, window, how.seed)
+    files = ["beyond.png", "beyond.csv", "beyond.json", *figures]
 
     parameters = {
         "tasks": "all 25 in turn",
@@ -399,56 +297,3 @@ def reproduce(
     )
     write_json(out / "beyond.json", data)
     return data
-
-
-def _cell(interval: Mapping[str, float | None] | None) -> str:
-    if not interval or interval["point"] is None:
-        return ""
-    if interval["low"] is None or interval["high"] is None:
-        return f"{interval['point']:.3f}"
-    return interval_cell(interval["point"], interval["low"], interval["high"])
-
-
-def table(data: Mapping[str, Any]) -> str:
-    """
-    The study's JSON as a Markdown table: a row per maze, Q and method, over the selection window.
-
-    :param data: ``reproduce``'s summary
-    :return: the table
-    """
-    window = data["parameters"]["selection"]["window"]
-    columns = [
-        "maze, Q",
-        "method",
-        "selected configuration",
-        "tuning score",
-        f"reward {window}",
-        "mean [95% CI]",
-        "IQM [95% CI]",
-        "fraction of known",
-        f"P(X > {REFERENCE}) [95% CI]",
-        "policy updates",
-        "seconds per run",
-        "runs",
-    ]
-    lines = ["| " + " | ".join(columns) + " |", "|---" * len(columns) + "|"]
-    for entry in data["results"].values():
-        tuned = data["tuning"][entry["maze"]].get(entry["method"])
-        reward = entry["reward"][window]
-        intervals = entry["intervals"][window]
-        cells = [
-            f"{entry['maze']}, {entry['q']}",
-            entry["method"],
-            entry.get("configuration", ""),
-            "" if tuned is None else f"{tuned['score']:.3f}",
-            f"{reward['mean']:.3f} ± {reward['se']:.3f}",
-            _cell(intervals["mean"]),
-            _cell(intervals["IQM"]),
-            _cell(entry["fraction_of_known"]),
-            _cell(entry.get("p_improvement")),
-            f"{entry['policy_updates']['mean']:.1f}",
-            f"{entry['seconds_per_run']:.3g}",
-            str(entry["runs"]),
-        ]
-        lines.append("| " + " | ".join(cells) + " |")
-    return "\n".join(lines)
