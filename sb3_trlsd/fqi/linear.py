@@ -149,14 +149,25 @@ class LinearFQISolver:
         return self._inverse[action]
 
     def action_blocks(self) -> list[ActionBlock]:
-        """The actions with samples, their columns and inverted Gram matrices."""
+        """
+        The actions with samples, their columns and inverted Gram matrices. An action whose rows are one
+        range (rows stored sorted by action, as a batch's shared source is) gives them as a slice: the
+        iterations then read its targets as a view instead of gathering them.
+        """
         return [
             ActionBlock(
-                action=a, phi_t=self._phi_t[a].view(), rows=self._rows[a].view()[0], inverse=self.inverse(a)
+                action=a, phi_t=self._phi_t[a].view(), rows=self._row_range(a), inverse=self.inverse(a)
             )
             for a in range(self.n_actions)
             if len(self._rows[a])
         ]
+
+    def _row_range(self, action: int) -> np.ndarray | slice:
+        """The rows of ``action``: a slice when they are consecutive, else their indices (n_a,)."""
+        rows = self._rows[action].view()[0]
+        # Rows are appended in increasing order, so first and last say whether they are consecutive.
+        first, last = int(rows[0]), int(rows[-1])
+        return slice(first, last + 1) if last - first + 1 == len(rows) else rows
 
     @property
     def next_phi_t(self) -> np.ndarray:

@@ -118,13 +118,10 @@ def bellman_targets_by_action(
     :param high: upper clip of the bootstrap, likewise
     :return: y, (..., n)
     """
-    # max over the actions, clipped, and without the bootstrap past an absorbing s': in place, as the
-    # iterations are bound by these passes over the rows.
-    bootstrap = next_q[..., 0, :].astype(np.result_type(next_q, rewards))  # a copy
-    for action in range(1, next_q.shape[-2]):
-        np.maximum(bootstrap, next_q[..., action, :], out=bootstrap)
-    np.maximum(bootstrap, low, out=bootstrap)
-    np.minimum(bootstrap, high, out=bootstrap)
+    # max over the actions (one reduction), clipped, and without the bootstrap past an absorbing s': in
+    # place, as the iterations are bound by these passes over the rows.
+    bootstrap = next_q.max(axis=-2).astype(np.result_type(next_q, rewards), copy=False)
+    np.clip(bootstrap, low, high, out=bootstrap)
     if terminated is not None and terminated.any():
         bootstrap[..., terminated] = 0.0
     bootstrap *= gamma
