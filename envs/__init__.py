@@ -31,11 +31,11 @@ from sb3_trlsd_envs.goal_cartpole import (
     cartpole_terminal,
     target_rewards,
 )
-from sb3_trlsd_envs.maze import (
+from sb3_trlsd_envs.maze import SharedDynamicsMaze
+from sb3_trlsd_envs.maze_tasks import (
     CELL_NOISE_STDS,
     CORNER_TASKS,
     N_TASKS,
-    SharedDynamicsMaze,
     expected_reward,
     task_cell,
     task_index,

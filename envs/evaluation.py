@@ -7,7 +7,7 @@ from collections.abc import Callable
 import numpy as np
 
 from sb3_trlsd_envs.dynamics import DEFAULT_WALLS, make_walls, maze_step
-from sb3_trlsd_envs.maze import expected_reward
+from sb3_trlsd_envs.maze_tasks import expected_reward
 
 __all__ = ["greedy_expected_rewards"]
 

@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from sb3_trlsd_envs.dynamics import MAZE_SIZE
-from sb3_trlsd_envs.maze import task_cell
+from sb3_trlsd_envs.maze_tasks import task_cell
 from sb3_trlsd_envs.rendering import draw_maze
 
 __all__ = ["greedy_policy_grid", "state_grid", "task_picture"]

@@ -9,7 +9,7 @@ from tensorboard.backend.event_processing.event_file_loader import EventFileLoad
 
 from sb3_trlsd import TRLSD, Transitions
 from sb3_trlsd_envs.evaluation import greedy_expected_rewards
-from sb3_trlsd_envs.maze import N_TASKS
+from sb3_trlsd_envs.maze_tasks import N_TASKS
 from tests.conftest import MAZE_ID
 
 
