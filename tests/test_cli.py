@@ -15,7 +15,8 @@ from pathlib import Path
 import pytest
 from matplotlib.image import imread
 
-from sb3_trlsd.cli import IMAGE_EXTENSIONS, main
+from sb3_trlsd.cli import main
+from sb3_trlsd.cli_parser import IMAGE_EXTENSIONS
 from sb3_trlsd.experiments import multitask
 
 TURNS, EPISODE_STEPS = 1, 8  # Figure 8 at these sizes: about 0.2 s per run
