@@ -22,7 +22,7 @@ from sb3_trlsd.fqi.targets import (
 )
 
 if TYPE_CHECKING:
-    from sb3_trlsd.fqi.linear import LinearFQISolver
+    from sb3_trlsd.fqi.linear import ActionBlock, LinearFQISolver
 
 __all__ = ["fit_linear_fqi_runs"]
 
@@ -110,20 +110,56 @@ class _OwnRows(NamedTuple):
         return _OwnRows(*(array[keep] for array in self))
 
 
+class _SharedRows(NamedTuple):
+    """The shared rows laid out action by action for one fit: each action's rows are a slice."""
+
+    next_phi_t: np.ndarray  # (k, n) Phi(s')^T
+    terminated: np.ndarray | None  # (n,) bool, None when no s' is absorbing
+    blocks: list[ActionBlock]  # rows: slices of the layout
+    order: np.ndarray | None  # the stored row of each column (None: the stored order is this layout)
+
+    @classmethod
+    def of(cls, solver: LinearFQISolver) -> _SharedRows:
+        """
+        The solver's rows as they are when each action's are a range (a batch's source, stored sorted by
+        action); otherwise a copy of Phi(s')^T in action order, made once per fit: reading the targets of
+        an action as a slice at every iteration saves more than the copy costs (rows in the order they came:
+        1.15-1.9 x faster iterations on 2,000-25,000 rows).
+        """
+        blocks = solver.action_blocks()
+        if all(isinstance(block.rows, slice) for block in blocks):
+            return cls(solver.next_phi_t, solver.terminated, blocks, None)
+        order = np.concatenate([np.arange(solver.n_transitions)[block.rows] for block in blocks])
+        starts = np.cumsum([0] + [block.phi_t.shape[1] for block in blocks])
+        terminated = solver.terminated
+        return cls(
+            solver.next_phi_t[:, order],
+            None if terminated is None else terminated[order],
+            [
+                block._replace(rows=slice(start, stop))
+                for block, start, stop in zip(blocks, starts[:-1], starts[1:], strict=True)
+            ],
+            order,
+        )
+
+
 class _BatchedFit:
     """The iterations of ``fit_linear_fqi_runs`` over the runs still iterating (``active``: their indices)."""
 
     def __init__(
         self, shared: LinearFQISolver | None, runs: list[_Run], shared_rewards: np.ndarray, gamma: float
     ):
-        self.shared = shared
-        self.shared_blocks = [] if shared is None else shared.action_blocks()
+        self.shared = None if shared is None else _SharedRows.of(shared)
+        self.shared_blocks = [] if self.shared is None else self.shared.blocks
         self.runs, self.gamma = runs, gamma
         self.dtype = shared_rewards.dtype
         self.n_actions, self.k = runs[0].theta0.shape
         self.active = np.array([r for r, run in enumerate(runs) if run.n_rows], dtype=np.int64)
-        # Per active run, kept as the set shrinks: shared rows' rewards, bounds, projections, own rows.
+        # Per active run, kept as the set shrinks: shared rows' rewards (in the shared rows' layout), bounds,
+        # projections, own rows.
         self.shared_rewards = shared_rewards[self.active]
+        if self.shared is not None and self.shared.order is not None:
+            self.shared_rewards = self.shared_rewards[:, self.shared.order]
         bounds = np.array([runs[r].bounds for r in self.active], dtype=self.dtype).reshape(-1, 2)
         self.low, self.high = bounds[:, :1], bounds[:, 1:]
         self.inverses = np.stack([runs[r].inverse for r in self.active]) if len(self.active) else None
