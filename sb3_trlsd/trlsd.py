@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Callable, Sequence
-from typing import Any, ClassVar, TypeVar
+from typing import Any, ClassVar
 
 import gymnasium as gym
 import numpy as np
@@ -31,9 +31,6 @@ from sb3_trlsd.settings import check_arguments, resolve_policy
 from sb3_trlsd.task_learner import TaskLearner
 
 __all__ = ["TRLSD"]
-
-SelfTRLSD = TypeVar("SelfTRLSD", bound="TRLSD")
-PICTURE_TRAIL = 50  # states of a task's latest trajectory drawn in its TensorBoard picture
 
 
 class TRLSD(TRLSDInterface, TRLSDOnlineLoop, OffPolicyAlgorithm):
