@@ -10,6 +10,7 @@ from sb3_trlsd.arrays import GrowableColumns
 from sb3_trlsd.fqi import (
     LinearFQISolver,
     fit_linear_fqi,
+    fit_linear_fqi_runs,
     fit_mlp_fqi,
     linear_q_values,
     make_q_network,
@@ -149,6 +150,36 @@ def test_solver_grown_in_chunks_refits_other_rewards_like_a_fresh_fit():
         refit = solver.fit(rewards, gamma=GAMMA)
         np.testing.assert_allclose(refit.theta, fresh.theta, rtol=1e-9, atol=1e-12)
         assert refit.iterations == fresh.iterations
+
+
+def test_rows_in_any_order_fit_as_rows_sorted_by_action():
+    """
+    The iterations read each action's rows as one range: a solver whose rows came sorted by action (a
+    batch's source) is read as it is, one whose rows came in any order (a run's own rows) is laid out action
+    by action for the fit. Either way, the same transitions with their rewards and terminations give the
+    same fit, alone and for several runs sharing the rows (same per-action sums: rtol 1e-9).
+    """
+    rng = np.random.default_rng(5)
+    n, k, n_actions = 900, 6, 4
+    phi, next_phi = rng.uniform(size=(n, k)), rng.uniform(size=(n, k))
+    actions, terminated = rng.integers(n_actions, size=n), rng.random(n) < 0.1
+    order = np.argsort(actions, kind="stable")
+    arrival, by_action = LinearFQISolver(k, n_actions), LinearFQISolver(k, n_actions)
+    arrival.extend(phi, actions, next_phi, terminated)
+    by_action.extend(phi[order], actions[order], next_phi[order], terminated[order])
+    assert all(isinstance(block.rows, slice) for block in by_action.action_blocks())
+    assert not all(isinstance(block.rows, slice) for block in arrival.action_blocks())
+    rewards = [np.random.default_rng(seed).uniform(-1, 1, size=n) for seed in (6, 7, 8)]
+    alone = [arrival.fit(r, gamma=GAMMA) for r in rewards]
+    together = fit_linear_fqi_runs(arrival, [None] * 3, rewards, gamma=GAMMA, theta0=[None] * 3)
+    sorted_together = fit_linear_fqi_runs(
+        by_action, [None] * 3, [r[order] for r in rewards], gamma=GAMMA, theta0=[None] * 3
+    )
+    for one, batched, sorted_fit in zip(alone, together, sorted_together, strict=True):
+        np.testing.assert_allclose(batched.theta, one.theta, rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(sorted_fit.theta, one.theta, rtol=1e-9, atol=1e-12)
+        assert abs(sorted_fit.iterations - one.iterations) <= 1
+        assert sorted_fit.bellman_residual == pytest.approx(one.bellman_residual, rel=1e-9)
 
 
 def test_float32_storage_fits_the_float64_theta_within_its_rounding():
