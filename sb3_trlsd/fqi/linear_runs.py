@@ -129,7 +129,8 @@ class _SharedRows(NamedTuple):
         blocks = solver.action_blocks()
         if all(isinstance(block.rows, slice) for block in blocks):
             return cls(solver.next_phi_t, solver.terminated, blocks, None)
-        order = np.concatenate([np.arange(solver.n_transitions)[block.rows] for block in blocks])
+        rows = np.arange(solver.n_transitions)
+        order = np.concatenate([rows[block.rows] for block in blocks])
         starts = np.cumsum([0] + [block.phi_t.shape[1] for block in blocks])
         terminated = solver.terminated
         return cls(
