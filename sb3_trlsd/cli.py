@@ -17,6 +17,7 @@ import warnings
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager, suppress
 from pathlib import Path
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -160,11 +161,12 @@ def leave_ray_at_once(status: int) -> None:
         os._exit(status)
 
 
-def study_options(figure: str, args: argparse.Namespace) -> dict[str, int]:
+def study_options(figure: str, args: argparse.Namespace) -> dict[str, Any]:
     """
-    The options of a study given on the command line (``--tuning-runs`` and ``--mlp-runs`` of ``beyond``).
+    The options of a study given on the command line (``--tuning-runs``, ``--mlp-runs`` and ``--mazes`` of
+    ``beyond``).
 
-    :raises ValueError: for an option given to a figure or study that does not take it
+    :raises ValueError: for an option given to a figure or study that does not take it, or a maze that is not
     """
     given = {name: getattr(args, name) for names in STUDY_OPTIONS.values() for name in names}
     given = {name: value for name, value in given.items() if value is not None}
@@ -173,6 +175,10 @@ def study_options(figure: str, args: argparse.Namespace) -> dict[str, int]:
         options = ", ".join("--" + name.replace("_", "-") for name in refused)
         owners = ", ".join(f"'reproduce {study}'" for study in STUDY_OPTIONS)
         raise ValueError(f"{options}: an option of {owners}, not of {figure!r}")
+    if "mazes" in given:
+        from sb3_trlsd.experiments.beyond import mazes_named
+
+        mazes_named(given["mazes"])  # refused here, before anything runs
     return given
 
 

@@ -131,6 +131,14 @@ def build_parser() -> argparse.ArgumentParser:
         help="beyond only: evaluation runs per method with the MLP Q too, one run at a time (~10 s each; "
         "at most --runs; default: 0, none)",
     )
+    reproduce.add_argument(
+        "--mazes",
+        nargs="+",
+        default=None,
+        metavar="MAZE",
+        help="beyond only: the mazes to study, paper-maze and/or noise-by-cell (default: both; one per "
+        "sitting gives a JSON each)",
+    )
     reproduce.add_argument("--out", default="results", help="output directory (default: %(default)s)")
     reproduce.add_argument("--seed", type=int, default=0, help="seed of the first run; run r uses seed + r")
     reproduce.add_argument(

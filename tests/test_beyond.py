@@ -26,6 +26,7 @@ from sb3_trlsd.experiments.beyond import (
 from sb3_trlsd.experiments.reporting import mean_and_standard_error
 from sb3_trlsd.experiments.reproduction import Reproduction
 from sb3_trlsd.experiments.runner import Method
+from sb3_trlsd.experiments.tuning import TUNING_BATCH_RUNS, tuning_source_sets
 from sb3_trlsd_envs import CELL_NOISE_STDS
 
 RUNS, TUNING_RUNS, MLP_RUNS, SEED = 4, 3, 1, 7
@@ -244,6 +245,7 @@ def test_the_files_are_written(study):
         ({"grids": {REFERENCE: GRIDS[REFERENCE][:1] * 2}}, "each configuration its own way"),
         ({"grids": {REFERENCE: GRIDS[REFERENCE], "known reward": GRIDS["OFUL"]}}, "reference level"),
         ({"mazes": {}}, "at least one maze"),
+        ({"mazes": ["paper-maze", "the moon"]}, "mazes must be among paper-maze, noise-by-cell"),
     ],
     ids=[
         "no-tuning-runs",
@@ -254,6 +256,7 @@ def test_the_files_are_written(study):
         "twice",
         "known",
         "no-maze",
+        "unknown-maze",
     ],
 )
 def test_bad_options_are_refused_before_any_run(options, message, tmp_path, monkeypatch):
@@ -303,6 +306,31 @@ def test_the_command_runs_beyond_with_its_options_and_refuses_them_elsewhere(tmp
     with pytest.raises(ValueError, match="takes no option"):
         reproduce("fig5", tmp_path, options={"mlp_runs": 1})
     assert "beyond" in STUDIES
+
+
+def test_the_mazes_are_named_as_in_mazes_or_with_dashes_and_the_command_takes_them(tmp_path, capsys):
+    assert beyond.mazes_named(["noise-by-cell"]) == {"noise by cell": {"reward_noise_std": CELL_NOISE_STDS}}
+    assert list(beyond.mazes_named(["noise by cell", "paper-maze"])) == ["paper maze", "noise by cell"]
+    with pytest.raises(ValueError, match="mazes must be among"):
+        beyond.mazes_named([])
+    assert main(["reproduce", "beyond", "--mazes", "paper", "--out", str(tmp_path)]) == 2
+    assert "mazes must be among paper-maze, noise-by-cell, got ['paper']" in capsys.readouterr().err
+    assert not list(tmp_path.iterdir())
+
+
+def test_the_tuning_runs_in_fewer_larger_batches_than_the_evaluation():
+    """
+    The tuning's runs in batches of ``TUNING_BATCH_RUNS`` (4 of 25 at the default 100), the evaluation's in
+    20: the seeds the JSON records are those of the batches ``transfer_runs`` makes with ``source_sets``.
+    """
+    assert TUNING_BATCH_RUNS == 25
+    assert [tuning_source_sets(runs) for runs in (1, 3, 25, 26, 50, 100)] == [1, 1, 1, 2, 2, 4]
+    assert len(tuning_seeds(SEED, 100)["source_sets"]) == 4
+    assert len(evaluation_seeds(SEED, 500)["source_sets"]) == batches.SOURCE_SETS == 20
+    method = GRIDS[REFERENCE][0]
+    found = batches.transfer_runs([method], range(25), 6, SEED, 1, n_source=40, n_online=4, source_sets=3)
+    assert [record.source_set for record in found[method.label]] == [0, 0, 1, 1, 2, 2]
+    assert evaluation_seeds(SEED, 6)["source_sets"] == [batches.source_seed(SEED, b) for b in range(6)]
 
 
 def test_beyond_is_not_part_of_all_and_its_help_says_what_it_does(capsys):

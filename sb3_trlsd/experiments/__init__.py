@@ -30,7 +30,7 @@ FIGURES: dict[str, tuple[str, str]] = {
 # Study -> (module, function(out, how, **options) -> summary, function(summary) -> its Markdown table).
 STUDIES: dict[str, tuple[str, str, str]] = {"beyond": ("beyond", "reproduce", "table")}
 # Study -> the keyword arguments of its function that ``reproduce`` passes on as ``options``.
-STUDY_OPTIONS: dict[str, tuple[str, ...]] = {"beyond": ("tuning_runs", "mlp_runs")}
+STUDY_OPTIONS: dict[str, tuple[str, ...]] = {"beyond": ("tuning_runs", "mlp_runs", "mazes")}
 
 
 def reproduce(

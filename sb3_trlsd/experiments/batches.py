@@ -65,10 +65,11 @@ def transfer_runs(
     cache: Path | None = None,
     backend: Backend = LOKY,
     protocol: Protocol = AS_BUILT,
+    source_sets: int = SOURCE_SETS,
 ) -> dict[str, list[RunRecord]]:
     """
     ``runs`` transfer runs of each method, run ``r`` on ``tasks[r % len(tasks)]`` with seed ``seed + r``, in
-    ``SOURCE_SETS`` batches of consecutive runs (``batch_runs``), batch b on the source set of
+    ``source_sets`` batches of consecutive runs (``batch_runs``), batch b on the source set of
     ``source_seed(seed, b)``: every method sees the same tasks, source transitions and env seeds (common
     random numbers), so that their differences are not blurred by the luck of the draw.
 
@@ -79,12 +80,14 @@ def transfer_runs(
     :param cache: directory of finished runs, see ``run_jobs`` (None: none)
     :param backend: where the runs go, see ``run_jobs``
     :param protocol: the choices the paper leaves open (a kept run is kept under its protocol)
+    :param source_sets: the batches (fewer with fewer runs): the more, the more honest the standard errors
+        over them; the fewer, the larger each batch and the faster its lockstep
     :return: method label -> its runs' records
     """
     # The sizes are resolved here, not in the workers, so that a cached batch's key holds them.
     n_source = SOURCE_TRANSITIONS if n_source is None else n_source
     n_online = ONLINE_TRANSITIONS if n_online is None else n_online
-    batches = batch_runs(runs)
+    batches = batch_runs(runs, source_sets)
     jobs = [
         (
             (

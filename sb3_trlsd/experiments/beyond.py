@@ -10,7 +10,8 @@ The protocol, fixed before any run:
    ``tuning_runs`` runs (100 by default) whose seeds are disjoint from the evaluation's: run r of the tuning
    has seed ``seed + TUNING_SEED_OFFSET + r`` and its source sets are drawn from that seed
    (``tuning_seeds``), while evaluation run r has seed ``seed + r``. Every configuration of every method sees
-   the same tuning runs (tasks, source sets, env seeds). The tuning is done on each maze for that maze.
+   the same tuning runs (tasks, source sets, env seeds), in batches of ``TUNING_BATCH_RUNS`` (25) stepped in
+   lockstep, each on a source set of its own (``tuning_source_sets``). Each maze is tuned for itself.
 2. Selection. The metric, fixed in advance: the mean over the tuning runs of each run's expected reward
    E[R_tau(s_t)] over the last 500 online transitions (``selection_window``), the window of the issue's goal;
    the highest wins, the first in grid order among equals (``select_configuration``). The MLP Q takes the
@@ -51,7 +52,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from sb3_trlsd.experiments.batches import transfer_runs
+from sb3_trlsd.experiments.batches import SOURCE_SETS, transfer_runs
 from sb3_trlsd.experiments.beyond_report import Curve, curve_label, study_results, table
 from sb3_trlsd.experiments.figures import curves_of, write_curves_figure
 from sb3_trlsd.experiments.known_reward import KNOWN
@@ -70,6 +71,7 @@ from sb3_trlsd.experiments.tuning import (
     select_configuration,
     selection_window,
     tuning_seeds,
+    tuning_source_sets,
     window_scores,
 )
 from sb3_trlsd_envs import CELL_NOISE_STDS, N_TASKS
@@ -82,6 +84,7 @@ __all__ = [
     "check_sizes",
     "check_study",
     "evaluation_seeds",
+    "mazes_named",
     "reproduce",
     "select_configuration",
     "selection_window",
@@ -97,6 +100,22 @@ MAZES: dict[str, dict[str, Any]] = {
     "paper maze": {},
     "noise by cell": {"reward_noise_std": CELL_NOISE_STDS},
 }
+
+
+def mazes_named(names: Sequence[str]) -> dict[str, dict[str, Any]]:
+    """
+    The mazes of ``MAZES`` named, in ``MAZES``'s order, each name as written there or with dashes for its
+    spaces (``"noise-by-cell"``, as the command line takes it).
+
+    :raises ValueError: for a name ``MAZES`` does not have, or none
+    """
+    wanted = {name.replace("-", " ") for name in names}
+    unknown = sorted(wanted - set(MAZES))
+    if unknown or not wanted:
+        raise ValueError(
+            f"mazes must be among {', '.join(name.replace(' ', '-') for name in MAZES)}, got {list(names)}"
+        )
+    return {name: kwargs for name, kwargs in MAZES.items() if name in wanted}
 
 
 # ------------------------------------------------------------------------------------------ the protocol
@@ -173,7 +192,7 @@ def reproduce(
     tuning_runs: int = DEFAULT_TUNING_RUNS,
     mlp_runs: int = 0,
     grids: Mapping[str, Sequence[Method]] | None = None,
-    mazes: Mapping[str, Mapping[str, Any]] | None = None,
+    mazes: Mapping[str, Mapping[str, Any]] | Sequence[str] | None = None,
     n_source: int | None = None,
     n_online: int | None = None,
 ) -> dict:
@@ -187,7 +206,8 @@ def reproduce(
     :param tuning_runs: runs per configuration of the tuning
     :param mlp_runs: evaluation runs per method with the MLP Q (0: none), at most ``runs``
     :param grids: method -> its configurations, ``REFERENCE`` among them (None: ``GRIDS``)
-    :param mazes: maze name -> the keyword arguments of its env (None: ``MAZES``)
+    :param mazes: maze name -> the keyword arguments of its env, or names of ``MAZES`` (``mazes_named``;
+        one maze per sitting, the JSONs side by side); None: ``MAZES``
     :param n_source: random source transitions per run (None: the paper's 25,000)
     :param n_online: online transitions per run (None: the paper's 1,000)
     :return: the JSON summary
@@ -197,7 +217,10 @@ def reproduce(
     runs = how.runs_or(DEFAULT_RUNS)
     check_sizes(runs, tuning_runs, mlp_runs)
     grids = GRIDS if grids is None else grids
-    mazes = MAZES if mazes is None else mazes
+    if mazes is None:
+        mazes = MAZES
+    elif not isinstance(mazes, Mapping):
+        mazes = mazes_named(mazes)
     check_study(grids, mazes)
     n_source = SOURCE_TRANSITIONS if n_source is None else n_source
     n_online = ONLINE_TRANSITIONS if n_online is None else n_online
@@ -206,7 +229,7 @@ def reproduce(
     windows = [(0, max(1, n_online // 10)), (0, n_online), window]  # Figure 5's at the paper's size
 
     def runs_of(
-        methods: Sequence[Method], count: int, first_seed: int, maze: str
+        methods: Sequence[Method], count: int, first_seed: int, maze: str, source_sets: int
     ) -> dict[str, list[RunRecord]]:
         return transfer_runs(
             methods,
@@ -217,6 +240,7 @@ def reproduce(
             n_source=n_source,
             n_online=n_online,
             env_kwargs=dict(mazes[maze]),
+            source_sets=source_sets,
             **how.run_options(),
         )
 
@@ -225,7 +249,8 @@ def reproduce(
     rows: list[Curve] = []  # (label, maze, Q, method) of each curve
     for maze in mazes:
         configurations = [configuration for grid in grids.values() for configuration in grid]
-        tuned = runs_of(configurations, tuning_runs, seeds["tuning"]["runs"][0], maze)
+        first_tuning_run = seeds["tuning"]["runs"][0]
+        tuned = runs_of(configurations, tuning_runs, first_tuning_run, maze, tuning_source_sets(tuning_runs))
         tuning[maze] = tune(grids, tuned, window)
         for policy, count in (("linear Q", runs), ("MLP Q", mlp_runs)):
             if not count:
@@ -236,7 +261,7 @@ def reproduce(
             ]
             if policy == "linear Q":
                 methods.append(KNOWN)  # the reference level
-            found = runs_of(methods, count, how.seed, maze)
+            found = runs_of(methods, count, how.seed, maze, SOURCE_SETS)
             for method in methods:
                 label = curve_label(maze, policy, method.label)
                 records[label] = found[method.label]

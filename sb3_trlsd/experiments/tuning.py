@@ -11,7 +11,7 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
-from sb3_trlsd.experiments.batches import batch_runs, run_source_seed, source_seed
+from sb3_trlsd.experiments.batches import SOURCE_SETS, batch_runs, run_source_seed, source_seed
 from sb3_trlsd.experiments.runner import Method, RunRecord
 
 __all__ = [
@@ -20,6 +20,7 @@ __all__ = [
     "GRIDS",
     "REFERENCE",
     "SELECTION_TRANSITIONS",
+    "TUNING_BATCH_RUNS",
     "TUNING_SEED_OFFSET",
     "UPDATE_RATIOS",
     "check_sizes",
@@ -28,12 +29,18 @@ __all__ = [
     "select_configuration",
     "selection_window",
     "tuning_seeds",
+    "tuning_source_sets",
     "window_scores",
 ]
 
 DEFAULT_RUNS = 500  # evaluation runs per method: Figure 5's size
 DEFAULT_TUNING_RUNS = 100  # tuning runs per configuration (the issue's budget)
 TUNING_SEED_OFFSET = 1_000_000  # tuning run r has seed seed + TUNING_SEED_OFFSET + r
+# The tuning's runs go in batches of 25 (one run per task; 4 batches at the default 100 runs) rather than
+# in the evaluation's 20 batches: the selection compares configurations on the same runs and source sets
+# (paired), takes no standard error over source sets, and a batch of 25 runs in lockstep costs about half
+# per run what a batch of 5 does.
+TUNING_BATCH_RUNS = 25
 SELECTION_TRANSITIONS = 500  # the selection metric: the reward over the last 500 online transitions
 UPDATE_RATIOS = (2.0, 1.2)  # the paper's two (Figure 5)
 REFERENCE = "eq. 9"  # the method the others are compared with head to head
@@ -87,13 +94,16 @@ def check_sizes(runs: int, tuning_runs: int, mlp_runs: int) -> None:
         )
 
 
-def _seeds(first: int, runs: int, per_run_sources: bool) -> dict[str, list[int]]:
-    """The seeds of ``transfer_runs(..., runs, first, ...)``: of its runs, and of its source sets."""
+def _seeds(first: int, runs: int, per_run_sources: bool, source_sets: int) -> dict[str, list[int]]:
+    """
+    The seeds of ``transfer_runs(..., runs, first, ..., source_sets=source_sets)``: of its runs, and of its
+    source sets.
+    """
     run_seeds = [first + run for run in range(runs)]
     if per_run_sources:
         sources = [run_source_seed(seed) for seed in run_seeds]
     else:
-        sources = [source_seed(first, batch) for batch in range(len(batch_runs(runs)))]
+        sources = [source_seed(first, batch) for batch in range(len(batch_runs(runs, source_sets)))]
     return {"runs": run_seeds, "source_sets": sources}
 
 
@@ -107,20 +117,25 @@ def evaluation_seeds(seed: int, runs: int, per_run_sources: bool = False) -> dic
     :param per_run_sources: a source set per run (the protocol's ``source_sets="per_run"``)
     :return: ``{"runs": [...], "source_sets": [...]}``
     """
-    return _seeds(seed, runs, per_run_sources)
+    return _seeds(seed, runs, per_run_sources, SOURCE_SETS)
 
 
 def tuning_seeds(seed: int, tuning_runs: int, per_run_sources: bool = False) -> dict[str, list[int]]:
     """
     The seeds of the tuning runs: run r's, ``seed + TUNING_SEED_OFFSET + r``, and those of the source sets
-    drawn from them, disjoint from the evaluation's (``reproduce`` checks it).
+    drawn from them (``tuning_source_sets``), disjoint from the evaluation's (``reproduce`` checks it).
 
     :param seed: the reproduction's seed
     :param tuning_runs: the tuning runs per configuration
     :param per_run_sources: a source set per run (the protocol's ``source_sets="per_run"``)
     :return: ``{"runs": [...], "source_sets": [...]}``
     """
-    return _seeds(seed + TUNING_SEED_OFFSET, tuning_runs, per_run_sources)
+    return _seeds(seed + TUNING_SEED_OFFSET, tuning_runs, per_run_sources, tuning_source_sets(tuning_runs))
+
+
+def tuning_source_sets(tuning_runs: int) -> int:
+    """The tuning's batches, one source set each, ``TUNING_BATCH_RUNS`` runs each (the last fewer)."""
+    return max(1, -(-tuning_runs // TUNING_BATCH_RUNS))
 
 
 def selection_window(n_online: int) -> tuple[int, int]:
