@@ -23,6 +23,7 @@ from sb3_trlsd.experiments.beyond import (
     selection_window,
     tuning_seeds,
 )
+from sb3_trlsd.experiments.beyond_report import best_against_goal, verdict
 from sb3_trlsd.experiments.reporting import mean_and_standard_error
 from sb3_trlsd.experiments.reproduction import Reproduction
 from sb3_trlsd.experiments.runner import Method
@@ -211,6 +212,73 @@ def test_the_json_has_every_field_and_aggregates_the_records(study):
     oful = np.array([record.rewards.mean() for record in linear["records"]["OFUL"]])
     by_hand = np.mean((oful > scores) + 0.5 * (oful == scores))
     assert data["results"]["paper maze, linear Q: OFUL"]["p_improvement"]["point"] == pytest.approx(by_hand)
+    # Each curve's verdict is its intervals', and the goal names each maze's best curve.
+    for entry in data["results"].values():
+        assert entry["verdict"] == verdict(entry)
+    for maze in ("paper maze", "noise by cell"):
+        fractions = [
+            entry["fraction_of_known"]["point"]
+            for entry in data["results"].values()
+            if entry["maze"] == maze and entry["method"] != "known reward"
+        ]
+        fractions = [fraction for fraction in fractions if fraction is not None]  # None: a zero known level
+        assert (maze in data["goal"]) == bool(fractions)
+        if fractions:
+            assert data["goal"][maze]["fraction_of_known"]["point"] == max(fractions)
+            assert data["results"][data["goal"][maze]["curve"]]["maze"] == maze
+
+
+def _entry(method="OFUL", improvement=(0.5, 0.4, 0.6), fraction=(0.7, 0.65, 0.75)):
+    """A curve's entry with the intervals ``verdict`` reads, as (point, low, high)."""
+    as_json = dict(zip(("point", "low", "high"), fraction, strict=True))
+    entry = {"method": method, "maze": "paper maze", "fraction_of_known": as_json}
+    if improvement is not None:
+        entry["p_improvement"] = dict(zip(("point", "low", "high"), improvement, strict=True))
+    return entry
+
+
+@pytest.mark.parametrize(
+    ("entry", "expected"),
+    [
+        (_entry(), "no clear difference from eq. 9; misses the 80% goal by 10.0% of the known level"),
+        (_entry(improvement=(0.7, 0.55, 0.8), fraction=(0.85, 0.8, 0.9)), "beats eq. 9; reaches the 80%"),
+        (_entry(improvement=(0.3, 0.2, 0.45), fraction=(0.8, 0.7, 0.9)), "below eq. 9; the 80% goal within"),
+        (_entry(method=REFERENCE, improvement=None, fraction=(0.9, 0.85, 0.95)), "reaches the 80% goal"),
+        (_entry(method=REFERENCE, improvement=None, fraction=(None, None, None)), ""),
+        (_entry(method="known reward", improvement=None, fraction=(1.0, 1.0, 1.0)), ""),
+    ],
+)
+def test_a_verdict_reads_the_intervals_against_one_half_and_the_goal(entry, expected):
+    assert verdict(entry).startswith(expected)
+
+
+def test_the_best_curve_of_each_maze_against_the_goal():
+    results = {
+        "a": _entry(method="OFUL", fraction=(0.7, 0.6, 0.79)),
+        "b": _entry(method="Thompson", fraction=(0.75, 0.7, 0.85)),
+        "c": _entry(method="known reward", fraction=(1.0, 1.0, 1.0)),
+        "d": {**_entry(method="OFUL", fraction=(0.9, 0.85, 0.95)), "maze": "noise by cell"},
+    }
+    best = best_against_goal(results)
+    assert best["paper maze"]["curve"] == "b" and best["paper maze"]["reached"] is None
+    assert best["paper maze"]["missed_by"] == pytest.approx(0.05)
+    assert best["noise by cell"] == {
+        "curve": "d",
+        "fraction_of_known": {"point": 0.9, "low": 0.85, "high": 0.95},
+        "goal": 0.8,
+        "reached": True,
+        "missed_by": pytest.approx(-0.1),
+    }
+    results["a"]["fraction_of_known"] = {"point": 0.75, "low": 0.7, "high": 0.79}
+    assert best_against_goal(results)["paper maze"]["curve"] == "a"  # the first of equals
+    results["b"]["fraction_of_known"] = {"point": 0.5, "low": 0.45, "high": 0.55}
+    assert best_against_goal(results)["paper maze"] == {
+        "curve": "a",
+        "fraction_of_known": {"point": 0.75, "low": 0.7, "high": 0.79},
+        "goal": 0.8,
+        "reached": False,
+        "missed_by": pytest.approx(0.05),
+    }
 
 
 def test_the_files_are_written(study):

@@ -53,7 +53,7 @@ from pathlib import Path
 from typing import Any
 
 from sb3_trlsd.experiments.batches import SOURCE_SETS, transfer_runs
-from sb3_trlsd.experiments.beyond_report import Curve, curve_label, study_results, table
+from sb3_trlsd.experiments.beyond_report import Curve, best_against_goal, curve_label, study_results, table
 from sb3_trlsd.experiments.figures import curves_of, write_curves_figure
 from sb3_trlsd.experiments.known_reward import KNOWN
 from sb3_trlsd.experiments.reporting import summary, write_json
@@ -318,6 +318,7 @@ def reproduce(
         grids={name: [configuration.parameters() for configuration in grid] for name, grid in grids.items()},
         tuning=tuning,
         results=results,
+        goal=best_against_goal(results),
         files=[str(out / name) for name in files],
     )
     write_json(out / "beyond.json", data)

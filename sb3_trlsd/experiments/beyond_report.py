@@ -20,14 +20,18 @@ from sb3_trlsd.experiments.statistics import mean_ratio, scores_by_task
 from sb3_trlsd.experiments.tuning import REFERENCE, window_scores
 
 __all__ = [
+    "GOAL_FRACTION",
     "Curve",
+    "best_against_goal",
     "curve_label",
     "method_statistics",
     "study_results",
     "table",
+    "verdict",
 ]
 
 Curve = tuple[str, str, str, str]  # (label, maze, Q, method) of each curve
+GOAL_FRACTION = 0.8  # issue 18's goal: 80% of the known-reward level over the last 500 online transitions
 
 
 def curve_label(maze: str, policy: str, method: str) -> str:
@@ -145,7 +149,73 @@ def study_results(
     improvement = _write_improvement(out, records, rows, window, seed)
     for (label, _), interval in improvement.items():
         results[label]["p_improvement"] = _interval(interval)
+    for entry in results.values():
+        entry["verdict"] = verdict(entry)
     return results, ["beyond_improvement.png"] if improvement else []
+
+
+def verdict(entry: Mapping[str, Any]) -> str:
+    """
+    A curve's verdict, read from its 95% intervals: against eq. 9, "beats" when P(method > eq. 9)'s interval
+    lies above 1/2, "below" when under it, "no clear difference" when it holds 1/2; against
+    ``GOAL_FRACTION`` of the known-reward level, "reaches" when the fraction's interval lies at or above it,
+    "misses" when below, "unclear" when it holds it. The known reward itself has no verdict ("").
+
+    :param entry: the curve's entry of the JSON (``study_results``)
+    """
+    if entry["method"] == KNOWN.label:
+        return ""
+    parts = []
+    improvement = entry.get("p_improvement")
+    if improvement and improvement["low"] is not None and improvement["high"] is not None:
+        if improvement["low"] > 0.5:
+            parts.append(f"beats {REFERENCE}")
+        elif improvement["high"] < 0.5:
+            parts.append(f"below {REFERENCE}")
+        else:
+            parts.append(f"no clear difference from {REFERENCE}")
+    fraction = entry["fraction_of_known"]
+    if None not in fraction.values():
+        goal = f"{GOAL_FRACTION:.0%} goal"
+        if fraction["low"] >= GOAL_FRACTION:
+            parts.append(f"reaches the {goal}")
+        elif fraction["high"] < GOAL_FRACTION:
+            parts.append(f"misses the {goal} by {GOAL_FRACTION - fraction['point']:.1%} of the known level")
+        else:
+            parts.append(f"the {goal} within its interval")
+    return "; ".join(parts)
+
+
+def best_against_goal(results: Mapping[str, Mapping[str, Any]]) -> dict[str, dict[str, Any]]:
+    """
+    On each maze, the curve (any Q, the known reward aside) with the highest fraction of the known-reward
+    level over the selection window, and that fraction against ``GOAL_FRACTION``.
+
+    :param results: the JSON's curves (``study_results``)
+    :return: maze -> ``{"curve", "fraction_of_known", "goal", "reached", "missed_by"}``; ``reached`` is
+        True when the fraction's 95% interval lies at or above the goal, False when below, None when it
+        holds it; ``missed_by`` is the goal less the point (<= 0 when the point reaches it)
+    """
+    best: dict[str, dict[str, Any]] = {}
+    for label, entry in results.items():
+        fraction = entry["fraction_of_known"]
+        if entry["method"] == KNOWN.label or fraction["point"] is None:
+            continue
+        if entry["maze"] in best and best[entry["maze"]]["fraction_of_known"]["point"] >= fraction["point"]:
+            continue
+        reached = None
+        if fraction["low"] is not None and fraction["low"] >= GOAL_FRACTION:
+            reached = True
+        elif fraction["high"] is not None and fraction["high"] < GOAL_FRACTION:
+            reached = False
+        best[entry["maze"]] = {
+            "curve": label,
+            "fraction_of_known": dict(fraction),
+            "goal": GOAL_FRACTION,
+            "reached": reached,
+            "missed_by": GOAL_FRACTION - fraction["point"],
+        }
+    return best
 
 
 def _cell(interval: Mapping[str, float | None] | None) -> str:
@@ -174,6 +244,7 @@ def table(data: Mapping[str, Any]) -> str:
         "IQM [95% CI]",
         "fraction of known",
         f"P(X > {REFERENCE}) [95% CI]",
+        "verdict",
         "policy updates",
         "seconds per run",
         "runs",
@@ -193,9 +264,19 @@ def table(data: Mapping[str, Any]) -> str:
             _cell(intervals["IQM"]),
             _cell(entry["fraction_of_known"]),
             _cell(entry.get("p_improvement")),
+            entry.get("verdict", ""),
             f"{entry['policy_updates']['mean']:.1f}",
             f"{entry['seconds_per_run']:.3g}",
             str(entry["runs"]),
         ]
         lines.append("| " + " | ".join(cells) + " |")
+    for maze, best in data.get("goal", {}).items():
+        fraction = _cell(best["fraction_of_known"])
+        outcome = {True: "reached", False: "missed", None: "within the interval"}[best["reached"]]
+        lines.append(
+            f"\n{maze}: the best, {best['curve']}, reaches {fraction} of the known-reward level: the "
+            f"{best['goal']:.0%} goal {outcome}"
+            + (f" (by {best['missed_by']:.1%} of the known level)" if best["reached"] is False else "")
+            + "."
+        )
     return "\n".join(lines)
