@@ -23,6 +23,7 @@ from sb3_trlsd.reward_heads.base import (
     RewardTracker,
     check_positive,
 )
+from sb3_trlsd.reward_heads.ridge_regression import RidgeRegression
 
 __all__ = [
     "PosteriorSnapshot",
@@ -75,7 +76,7 @@ class PosteriorSnapshot(NamedTuple):
     log_det_gram: float | None  # log det A; None before the first sample
 
 
-class RidgePosteriorRewardHead(RewardHead):
+class RidgePosteriorRewardHead(RidgeRegression, RewardHead):
     """
     Ridge regression of the reward on Phi(s) with the ellipsoidal confidence bound of OFUL / LinUCB
     (Abbasi-Yadkori, Pal & Szepesvari, "Improved algorithms for linear stochastic bandits", NeurIPS 2011):
@@ -105,10 +106,8 @@ class RidgePosteriorRewardHead(RewardHead):
             raise ValueError(f"features must be Phi, a callable states (n, d) -> (n, k), got {features!r}")
         self.features = features
         self.ridge = check_positive("ridge", ridge, "the Tikhonov regularisation lambda, 1 in the paper")
-        self._gram: np.ndarray | None = None  # A = Phi^T Phi + lambda I, (k, k)
-        self._moments: np.ndarray | None = None  # Phi^T r, (k,)
-        # Derived from A and Phi^T r on demand, None when stale.
-        self._weights: np.ndarray | None = None
+        self._start_ridge_regression()
+        # Derived from A on demand, None when stale.
         self._gram_inverse: np.ndarray | None = None
         self._log_det_gram: float | None = None
 
@@ -116,26 +115,13 @@ class RidgePosteriorRewardHead(RewardHead):
         return [*super()._repr_items(), f"ridge={self.ridge:g}"]
 
     def _update(self, states: np.ndarray, rewards: np.ndarray) -> None:
-        phi = self.features(states)  # (n, k)
-        if self._gram is None:
-            self._gram = self.ridge * np.eye(phi.shape[1])
-            self._moments = np.zeros(phi.shape[1])
-        assert self._moments is not None
-        self._gram += phi.T @ phi
-        self._moments += phi.T @ rewards
-        self._weights = self._gram_inverse = self._log_det_gram = None
+        self._accumulate(self.features(states), rewards)
+        self._gram_inverse = self._log_det_gram = None
 
     @property
     def gram(self) -> np.ndarray | None:
         """A = Phi^T Phi + lambda I, (k, k), or None before the first sample."""
         return self._gram
-
-    @property
-    def weights(self) -> np.ndarray | None:
-        """The ridge solution w_hat = A^-1 Phi^T r, (k,), or None before the first sample."""
-        if self._weights is None and self._gram is not None:
-            self._weights = np.linalg.solve(self._gram, self._moments)
-        return self._weights
 
     @property
     def gram_inverse(self) -> np.ndarray | None:
@@ -153,19 +139,6 @@ class RidgePosteriorRewardHead(RewardHead):
             assert sign > 0, "A = Phi^T Phi + lambda I is positive definite"
             self._log_det_gram = float(log_det)
         return self._log_det_gram
-
-    def estimate(self, states: np.ndarray) -> np.ndarray:
-        return self.estimate_from_features(self.features(np.asarray(states, dtype=np.float64)))
-
-    def estimate_from_features(self, phi: np.ndarray) -> np.ndarray:
-        """
-        R^ from precomputed features.
-
-        :param phi: Phi(s), (n, k)
-        :return: (n,), 0 before the first sample
-        """
-        weights = self.weights
-        return np.zeros(len(phi)) if weights is None else phi @ weights
 
     def widths_from_features(self, phi: np.ndarray, gram_inverse: np.ndarray | None) -> np.ndarray:
         """

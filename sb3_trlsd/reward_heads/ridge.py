@@ -15,6 +15,7 @@ from sb3_trlsd.reward_heads.base import (
     check_positive,
     confidence_width,
 )
+from sb3_trlsd.reward_heads.ridge_regression import RidgeRegression
 
 __all__ = ["SIMILARITIES", "KernelSumTracker", "RidgeRewardHead"]
 
@@ -25,13 +26,13 @@ KERNEL_BLOCK = 4_000_000
 StatesFn = Callable[[np.ndarray], np.ndarray]
 
 
-class RidgeRewardHead(RewardHead):
+class RidgeRewardHead(RidgeRegression, RewardHead):
     """
     Continuous setting: ridge regression of the reward on Phi(s) and the neighbouring-weight CI of eq. 9.
 
-    R^(s) = Phi(s) . w with w = (Phi^T Phi + lambda I)^-1 Phi^T r from running sums of Phi^T Phi and Phi^T r,
-    solved lazily (k x k) and cached until the next update. The sample states (or their features, for the
-    eq. 7 similarity) are kept in a growable array for the kernel sums W_tau(s) of eq. 8.
+    R^(s) = Phi(s) . w with w = (Phi^T Phi + lambda I)^-1 Phi^T r (``RidgeRegression``). The sample states
+    (or their features, for the eq. 7 similarity) are kept in a growable array for the kernel sums W_tau(s)
+    of eq. 8.
 
     :param features: Phi, states (n, d) -> (n, k) (e.g. an ``RBFGrid``)
     :param kappa: optimism (eq. 9), >= 0
@@ -65,9 +66,7 @@ class RidgeRewardHead(RewardHead):
         self.similarity = similarity
         self.ridge = check_positive("ridge", ridge, "the Tikhonov regularisation lambda, 1 in the paper")
         self.w_floor = check_positive("w_floor", w_floor, "the floor of the neighbouring weight W")
-        self._gram: np.ndarray | None = None  # Phi^T Phi + lambda I, (k, k)
-        self._moments: np.ndarray | None = None  # Phi^T r, (k,)
-        self._weights: np.ndarray | None = None  # cached solution, None when stale
+        self._start_ridge_regression()
         self._points: GrowableArray | None = None  # what the similarity compares: states or Phi(states)
 
     def _repr_items(self) -> list[str]:
@@ -88,38 +87,11 @@ class RidgeRewardHead(RewardHead):
 
     def _update(self, states: np.ndarray, rewards: np.ndarray) -> None:
         phi = self.features(states)  # (n, k)
-        if self._gram is None:
-            self._gram = self.ridge * np.eye(phi.shape[1])
-            self._moments = np.zeros(phi.shape[1])
-        assert self._moments is not None
-        # Running sufficient statistics of the ridge regression.
-        self._gram += phi.T @ phi
-        self._moments += phi.T @ rewards
-        self._weights = None
+        self._accumulate(phi, rewards)
         points = self.similarity_points(states, phi)
         if self._points is None:
             self._points = GrowableArray(points.shape[1])
         self._points.append(points)
-
-    @property
-    def weights(self) -> np.ndarray | None:
-        """Ridge solution w = (Phi^T Phi + lambda I)^-1 Phi^T r, (k,), or None before the first sample."""
-        if self._weights is None and self._gram is not None:
-            self._weights = np.linalg.solve(self._gram, self._moments)
-        return self._weights
-
-    def estimate(self, states: np.ndarray) -> np.ndarray:
-        return self.estimate_from_features(self.features(np.asarray(states, dtype=np.float64)))
-
-    def estimate_from_features(self, phi: np.ndarray) -> np.ndarray:
-        """
-        R^ from precomputed features.
-
-        :param phi: Phi(s), (n, k)
-        :return: (n,), 0 before the first sample
-        """
-        weights = self.weights
-        return np.zeros(len(phi)) if weights is None else phi @ weights
 
     def kernel_sums(self, points: np.ndarray, start: int = 0, stop: int | None = None) -> np.ndarray:
         """
