@@ -154,12 +154,21 @@ def study_results(
     return results, ["beyond_improvement.png"] if improvement else []
 
 
+def _reaches_goal(fraction: Mapping[str, float | None]) -> bool | None:
+    """True when the fraction's 95% interval lies at or above ``GOAL_FRACTION``, False below, else None."""
+    if fraction["low"] is not None and fraction["low"] >= GOAL_FRACTION:
+        return True
+    if fraction["high"] is not None and fraction["high"] < GOAL_FRACTION:
+        return False
+    return None
+
+
 def verdict(entry: Mapping[str, Any]) -> str:
     """
     A curve's verdict, read from its 95% intervals: against eq. 9, "beats" when P(method > eq. 9)'s interval
     lies above 1/2, "below" when under it, "no clear difference" when it holds 1/2; against
     ``GOAL_FRACTION`` of the known-reward level, "reaches" when the fraction's interval lies at or above it,
-    "misses" when below, "unclear" when it holds it. The known reward itself has no verdict ("").
+    "misses" when below, "within its interval" when it holds it. The known reward has no verdict ("").
 
     :param entry: the curve's entry of the JSON (``study_results``)
     """
@@ -177,9 +186,10 @@ def verdict(entry: Mapping[str, Any]) -> str:
     fraction = entry["fraction_of_known"]
     if None not in fraction.values():
         goal = f"{GOAL_FRACTION:.0%} goal"
-        if fraction["low"] >= GOAL_FRACTION:
+        reached = _reaches_goal(fraction)
+        if reached:
             parts.append(f"reaches the {goal}")
-        elif fraction["high"] < GOAL_FRACTION:
+        elif reached is False:
             parts.append(f"misses the {goal} by {GOAL_FRACTION - fraction['point']:.1%} of the known level")
         else:
             parts.append(f"the {goal} within its interval")
@@ -203,16 +213,11 @@ def best_against_goal(results: Mapping[str, Mapping[str, Any]]) -> dict[str, dic
             continue
         if entry["maze"] in best and best[entry["maze"]]["fraction_of_known"]["point"] >= fraction["point"]:
             continue
-        reached = None
-        if fraction["low"] is not None and fraction["low"] >= GOAL_FRACTION:
-            reached = True
-        elif fraction["high"] is not None and fraction["high"] < GOAL_FRACTION:
-            reached = False
         best[entry["maze"]] = {
             "curve": label,
             "fraction_of_known": dict(fraction),
             "goal": GOAL_FRACTION,
-            "reached": reached,
+            "reached": _reaches_goal(fraction),
             "missed_by": GOAL_FRACTION - fraction["point"],
         }
     return best
