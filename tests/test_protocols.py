@@ -149,6 +149,55 @@ def test_a_combination_runs_each_figure_as_the_single_change_that_reaches_it():
     )
 
 
+@pytest.mark.parametrize(
+    ("name", "head", "multitask", "reaches"),
+    [
+        ("multitask-fixed-start", "ridge", False, False),
+        ("multitask-fixed-start", "ridge", True, True),
+        ("multitask-continue", "tabular", False, False),
+        ("no-online-restarts", "ridge", True, False),
+        ("no-online-restarts", "known", False, True),
+        ("source-set-per-run", "ridge", True, False),
+        ("source-set-per-run", "ridge", False, True),
+        ("tabular-unvisited-r-max", "ridge", False, False),
+        ("tabular-unvisited-r-max", "ridge", True, False),
+        ("tabular-unvisited-r-max", "tabular", False, True),
+        ("tabular-unvisited-r-max", "corners", False, True),
+        ("r-max-clip", "known", False, False),
+        ("r-max-clip", "ridge", True, True),
+        ("log-count-plus-one", "known", False, False),
+        ("gamma-0.95", "known", False, True),
+        ("gamma-0.99", "ridge", True, True),
+        ("first-fit-after-sample", "tabular", False, True),
+    ],
+)
+def test_a_preset_reaches_a_run_only_through_what_the_run_is_built_from(name, head, multitask, reaches):
+    reaching = preset(name).reaching(head, multitask)
+    assert reaching == (preset(name) if reaches else AS_BUILT)
+    assert reaching.run_inputs(head, multitask) == preset(name).run_inputs(head, multitask)
+
+
+def test_a_combination_reaches_each_run_as_the_single_change_that_reaches_it():
+    for head in ("ridge", "tabular", "known"):
+        assert preset("no-restarts").reaching(head) == preset("no-online-restarts")
+    assert preset("no-restarts").reaching("ridge", multitask=True) == preset("multitask-continue")
+
+
+@pytest.mark.parametrize("name", [name for name in PRESETS if name != DEFAULT_PROTOCOL])
+def test_a_run_a_preset_does_not_reach_is_today_s_run(name):
+    """What ``reaching`` drops must not change a run: the kept runs of today stand for the preset's."""
+    multitask_runs = {"n_turns": 1, "episode_steps": 6}
+    for method in (CONTINUOUS, DISCRETE, Method("kappa 0", kappa=0.0)):
+        if preset(name).reaching(method.reward_head) == AS_BUILT:
+            assert outcome(tiny_transfer_batch(method, preset(name))) == outcome(
+                tiny_transfer_batch(method, AS_BUILT)
+            )
+        if preset(name).reaching(method.reward_head, multitask=True) == AS_BUILT:
+            assert outcome(
+                multitask_batch(method, (3, 4), protocol=preset(name), **multitask_runs)
+            ) == outcome(multitask_batch(method, (3, 4), protocol=AS_BUILT, **multitask_runs))
+
+
 def test_today_s_protocol_is_the_code_s_own_defaults():
     """If a default of TRLSD, the maze or a head moved, 'as-built' would no longer be what runs without it."""
 
@@ -512,6 +561,28 @@ def test_runs_of_different_protocols_are_kept_apart(tiny_figures, tmp_path, caps
     assert run_key(transfer_batch, arguments, {}) == run_key(
         transfer_batch, arguments, {"protocol": AS_BUILT}
     )
+
+
+def test_a_figure_under_a_preset_reuses_today_s_runs_of_what_the_preset_does_not_reach(
+    tiny_figures, tmp_path, capsys
+):
+    cache = tmp_path / "runs"
+    today = {figure: reproduce_figure(figure, tmp_path, "--cache", str(cache)) for figure in ("fig5", "fig8")}
+    kept = set(cache.iterdir())
+    for figure, name in (
+        ("fig8", "no-online-restarts"),
+        ("fig8", "source-set-per-run"),
+        ("fig5", "multitask-fixed-start"),
+    ):
+        under_preset = reproduce_figure(figure, tmp_path, "--cache", str(cache), "--protocol", name)
+        assert set(cache.iterdir()) == kept, (figure, name)
+        assert under_preset["parameters"]["protocol"]["name"] == name
+        assert without_timings(under_preset) == without_timings(today[figure])
+    # Figure 5 under R_max for unvisited cells: only its two discrete methods' batches run again.
+    reproduce_figure("fig5", tmp_path, "--cache", str(cache), "--protocol", "tabular-unvisited-r-max")
+    discrete = sum(method["reward_head"] == "tabular" for method in today["fig5"]["parameters"]["methods"])
+    assert discrete == 2
+    assert len(set(cache.iterdir()) - kept) == discrete * 2  # 2 runs: a batch of 1 run each
 
 
 def test_the_multitask_env_of_a_protocol_is_today_s_maze_under_as_built():

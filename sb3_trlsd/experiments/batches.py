@@ -79,7 +79,8 @@ def transfer_runs(
         default)
     :param cache: directory of finished runs, see ``run_jobs`` (None: none)
     :param backend: where the runs go, see ``run_jobs``
-    :param protocol: the choices the paper leaves open (a kept run is kept under its protocol)
+    :param protocol: the choices the paper leaves open (a kept run is kept under those that reach it:
+        ``Protocol.reaching``)
     :param source_sets: the batches (fewer with fewer runs): the more, the more honest the standard errors
         over them; the fewer, the larger each batch and the faster its lockstep
     :return: method label -> its runs' records
@@ -98,7 +99,7 @@ def transfer_runs(
                 n_source,
                 n_online,
             ),
-            {"env_kwargs": env_kwargs, "source_set": b, "protocol": protocol},
+            {"env_kwargs": env_kwargs, "source_set": b, "protocol": protocol.reaching(method.reward_head)},
         )
         for method in methods
         for b, batch in enumerate(batches)

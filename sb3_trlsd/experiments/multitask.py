@@ -117,7 +117,10 @@ def reproduce(out: Path, how: Reproduction) -> dict:
     # Batches of runs stepped in lockstep; without a source, their runs share nothing and stay independent.
     batches = batch_runs(runs)
     jobs = [
-        ((method, tuple(how.seed + run for run in batch), TURNS, EPISODE_STEPS), {"protocol": how.protocol})
+        (
+            (method, tuple(how.seed + run for run in batch), TURNS, EPISODE_STEPS),
+            {"protocol": how.protocol.reaching(method.reward_head, multitask=True)},
+        )
         for method in METHODS
         for batch in batches
     ]

@@ -27,14 +27,15 @@ The choices, with the options a careful reader of the paper could defend (today'
 Presets: today's choices (``"as-built"``, the default), one preset per single change from them, and the
 study's best-supported combination (``"no-restarts"``: the online phases without restarts). A
 ``Protocol`` is passed explicitly down to the envs and models a figure builds (``runner.Method.make_model``,
-``batches.transfer_batch``, ``runner.multitask_env``); the run cache keys on it, as on every argument of a
-run, and a figure's JSON records it (``protocol_record``).
+``batches.transfer_batch``, ``runner.multitask_env``); a figure's JSON records it (``protocol_record``). The
+run cache keys each run on the choices that reach it (``Protocol.reaching``): a preset's runs of the methods
+it does not reach are today's runs, kept once, so a figure under it reruns only what it changes.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields, replace
 from typing import Any
 
 from sb3_trlsd.reward_heads.base import DEFAULT_LOG_COUNT_RULE, DEFAULT_W_FLOOR, check_log_count_rule
@@ -158,6 +159,43 @@ class Protocol:
             "reward_head_kwargs": self.head_kwargs(reward_head),
         }
 
+    def run_inputs(self, reward_head: str, multitask: bool) -> tuple:
+        """
+        Everything of this protocol that a figure's run is built from: its env's keyword arguments, its
+        model's, and for a transfer run its source sets.
+
+        :param reward_head: the run's head name
+        :param multitask: a multi-task run (Figure 8) rather than a transfer run
+        """
+        if multitask:
+            return self.multitask_env_kwargs(), self.model_kwargs(reward_head)
+        return self.target_env_kwargs(), self.source_sets, self.model_kwargs(reward_head)
+
+    def reaching(self, reward_head: str, multitask: bool = False) -> Protocol:
+        """
+        This protocol with only the choices that reach a run of ``reward_head``, the others at today's
+        values: a run with the same inputs (``run_inputs``) is the same run. A run's kept file is keyed on
+        this, so a figure under a preset reuses today's runs of the methods that the preset does not reach
+        (e.g. ``multitask-fixed-start`` reaches no transfer run, ``tabular-unvisited-r-max`` only the
+        discrete heads).
+
+        :param reward_head: the run's head name
+        :param multitask: a multi-task run (Figure 8) rather than a transfer run
+        :return: a protocol with the same ``run_inputs``
+        """
+        today = Protocol()
+        inputs = self.run_inputs(reward_head, multitask)
+        reaching = {
+            choice.name: getattr(self, choice.name)
+            for choice in fields(self)
+            if replace(today, **{choice.name: getattr(self, choice.name)}).run_inputs(reward_head, multitask)
+            != today.run_inputs(reward_head, multitask)
+        }
+        projected = replace(today, **reaching)
+        if projected.run_inputs(reward_head, multitask) != inputs:  # choices that reach only together
+            return self
+        return projected
+
 
 AS_BUILT = Protocol()
 DEFAULT_PROTOCOL = "as-built"
@@ -174,7 +212,7 @@ class Preset:
     :param why: why a careful reader of the paper could defend it
     :param combines: for a combination of single changes, the presets whose choices it takes (each choice
         reaching other figures than the others', a combination's runs of a figure are those of the preset
-        that reaches it: ``tests/test_protocols.py``)
+        that reaches it, kept under the same key: ``Protocol.reaching``)
     """
 
     name: str
