@@ -9,6 +9,7 @@ import pytest
 from sb3_trlsd.cli import main
 from sb3_trlsd.experiments.claims import (
     CLAIMS,
+    SAME_RUNS,
     above,
     above_all,
     alike,
@@ -127,3 +128,28 @@ def test_the_claims_command_prints_and_writes_one_column_per_directory(tmp_path,
     empty = tmp_path / "empty"
     empty.mkdir()
     assert main(["claims", str(empty)]) == 2
+
+
+def test_a_protocol_s_figure_with_today_s_results_says_it_is_today_s_runs(tmp_path):
+    today, fixed, continued = tmp_path / "today", tmp_path / "fixed", tmp_path / "continued"
+    for directory in (today, fixed, continued):
+        directory.mkdir()
+    timed = {label: dict(entry, seconds_per_run=1.0) for label, entry in FIG8.items()}
+    write_figure(today, "fig8", timed, None)
+    retimed = {label: dict(entry, seconds_per_run=2.0) for label, entry in FIG8.items()}
+    write_figure(fixed, "fig8", retimed, "no-online-restarts")  # reaches no run of Figure 8
+    moved = dict(
+        FIG8,
+        **{
+            "non-optimistic (kappa=0)": dict(FIG8["non-optimistic (kappa=0)"], near_solved_after_episodes=260)
+        },
+    )
+    write_figure(continued, "fig8", moved, "multitask-continue")
+    table = claims_table([load_figures(directory) for directory in (today, fixed, continued)])
+    solved = next(line for line in table.splitlines() if "near solved" in line).split(" | ")
+    assert solved[2].startswith("250, 250, 250 episodes")
+    assert solved[3] == SAME_RUNS
+    assert solved[4].startswith("260, 250, 250 episodes")
+    # Without today's column there is nothing to compare with: the numbers are given.
+    alone = claims_table([load_figures(fixed)])
+    assert SAME_RUNS not in alone and "250, 250, 250 episodes" in alone

@@ -251,9 +251,22 @@ def evaluate_claims(figures: Mapping[str, FigureResults]) -> list[Verdict | None
     return [claim.check(figures[claim.figure]) if claim.figure in figures else None for claim in CLAIMS]
 
 
+TODAY = "as-built"  # the column the others are compared with
+SAME_RUNS = "as as-built (the same runs)"
+
+
+def _without_timings(value: Any) -> Any:
+    """A figure's results without their seconds, which differ between two reproductions of the same runs."""
+    if isinstance(value, Mapping):
+        return {key: _without_timings(item) for key, item in value.items() if key != "seconds_per_run"}
+    return value
+
+
 def claims_table(columns: Sequence[tuple[str, Mapping[str, FigureResults]]]) -> str:
     """
-    A Markdown table: one row per claim, one column per (protocol, figures).
+    A Markdown table: one row per claim, one column per (protocol, figures). Where a protocol's figure has
+    exactly the results of today's (``as-built``, when it is a column), its cells say so instead of repeating
+    them: the protocol reaches none of that figure's runs, which were kept once (``Protocol.reaching``).
 
     :param columns: (protocol name, figure -> results) per column
     :return: the table
@@ -261,7 +274,24 @@ def claims_table(columns: Sequence[tuple[str, Mapping[str, FigureResults]]]) -> 
     header = ["figure", "paper's claim", *(name for name, _ in columns)]
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     verdicts = [evaluate_claims(figures) for _, figures in columns]
+    today = next((figures for name, figures in columns if name == TODAY), {})
+    same = [
+        {
+            figure
+            for figure, results in figures.items()
+            if name != TODAY
+            and figure in today
+            and _without_timings(results) == _without_timings(today[figure])
+        }
+        for name, figures in columns
+    ]
     for row, claim in enumerate(CLAIMS):
-        cells = [claim.figure, claim.text, *("" if v[row] is None else v[row].cell() for v in verdicts)]
+        cells = [claim.figure, claim.text]
+        for column_verdicts, same_figures in zip(verdicts, same, strict=True):
+            verdict = column_verdicts[row]
+            if verdict is None:
+                cells.append("")
+            else:
+                cells.append(SAME_RUNS if claim.figure in same_figures else verdict.cell())
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
