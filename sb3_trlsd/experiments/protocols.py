@@ -185,11 +185,12 @@ class Protocol:
         """
         today = Protocol()
         inputs = self.run_inputs(reward_head, multitask)
+        today_inputs = today.run_inputs(reward_head, multitask)
         reaching = {
             choice.name: getattr(self, choice.name)
             for choice in fields(self)
             if replace(today, **{choice.name: getattr(self, choice.name)}).run_inputs(reward_head, multitask)
-            != today.run_inputs(reward_head, multitask)
+            != today_inputs
         }
         projected = replace(today, **reaching)
         if projected.run_inputs(reward_head, multitask) != inputs:  # choices that reach only together
