@@ -23,14 +23,12 @@ from __future__ import annotations
 
 import argparse
 import time
-from typing import Any
 
 import gymnasium as gym
 import numpy as np
-import torch as th
 from stable_baselines3 import DQN
 
-from sb3_trlsd import RelabellingReplayBuffer, Transitions, collect_transitions
+from sb3_trlsd import RelabellingReplayBuffer, Transitions, collect_transitions, dqn_q_values
 from sb3_trlsd.experiments.baselines import (
     DQN_SETTINGS,
     ExpectedRewards,
@@ -43,17 +41,6 @@ from sb3_trlsd_envs.maze import N_TASKS
 MAZE_ID = "TRLSD/SharedDynamicsMaze-v0"
 N_SOURCE = 25_000  # the paper's source set
 METHODS = ("DQN + relabelling (tabular)", "DQN + relabelling (ridge)", "DQN", "DQN, zero-reward source")
-
-
-def dqn_q_values(model: DQN) -> Any:
-    """``q_values(states, tasks)`` of a DQN on the maze's Dict observations (``greedy_expected_rewards``)."""
-
-    def q_values(states: np.ndarray, tasks: np.ndarray) -> np.ndarray:
-        obs = {"state": th.as_tensor(states, dtype=th.float32), "task": th.as_tensor(tasks[:, None])}
-        with th.no_grad():
-            return model.q_net(obs).numpy()
-
-    return q_values
 
 
 def run_once(

@@ -8,7 +8,7 @@ from sb3_trlsd.buffers import SharedDynamicsReplayBuffer
 from sb3_trlsd.data import Transitions, collect_transitions
 from sb3_trlsd.feature_maps import FeatureMap, RandomFourierFeatures, RBFGrid
 from sb3_trlsd.policies import LinearPolicy, MlpPolicy
-from sb3_trlsd.relabelling_buffer import RelabellingReplayBuffer
+from sb3_trlsd.relabelling_buffer import RelabellingReplayBuffer, dqn_q_values
 from sb3_trlsd.reward_heads import (
     GridCells,
     KnownRewardHead,
@@ -39,5 +39,6 @@ __all__ = [
     "Transitions",
     "__version__",
     "collect_transitions",
+    "dqn_q_values",
     "make_reward_head",
 ]

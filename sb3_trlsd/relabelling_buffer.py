@@ -9,7 +9,7 @@ samples minibatches then fits its own Q-function on the relabelled rows instead 
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import replace
 from typing import Any
 
@@ -26,7 +26,7 @@ from sb3_trlsd.feature_maps import FeatureMap, make_feature_map
 from sb3_trlsd.observations import split_observation
 from sb3_trlsd.reward_heads import REWARD_HEAD_NAMES, RewardHead
 
-__all__ = ["LEARNT_REWARD_HEADS", "RelabellingReplayBuffer"]
+__all__ = ["LEARNT_REWARD_HEADS", "RelabellingReplayBuffer", "dqn_q_values"]
 
 # The heads learnt from observed rewards; "known" needs no relabelling buffer (the env gives its reward).
 LEARNT_REWARD_HEADS = tuple(name for name in REWARD_HEAD_NAMES if name != "known")
@@ -261,3 +261,24 @@ class RelabellingReplayBuffer(SharedDynamicsReplayBuffer):
             dones=self.to_torch(dones.reshape(-1, 1)),
             rewards=rewards_column,
         )
+
+
+def dqn_q_values(model: Any) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
+    """
+    ``q_values(states, tasks)`` of a DQN (or any SB3 model whose policy has a ``q_net``) on a multi-task
+    env's ``{"state", "task"}`` observations: the form ``greedy_expected_rewards`` and the experiments'
+    evaluations take, so a DQN trained with a ``RelabellingReplayBuffer`` is scored as TRLSD is.
+
+    :param model: a trained SB3 model with ``policy.q_net``
+    :return: a function of ``(n, d)`` states and ``(n,)`` task indices giving their ``(n, n_actions)`` values
+    """
+
+    def q_values(states: np.ndarray, tasks: np.ndarray) -> np.ndarray:
+        observations = {
+            "state": th.as_tensor(states, dtype=th.float32, device=model.device),
+            "task": th.as_tensor(np.asarray(tasks)[:, None], device=model.device),
+        }
+        with th.no_grad():
+            return model.policy.q_net(observations).cpu().numpy()
+
+    return q_values

@@ -11,7 +11,7 @@ from sb3_contrib import QRDQN
 from stable_baselines3 import DQN
 from stable_baselines3.common.type_aliases import DictReplayBufferSamples, ReplayBufferSamples
 
-from sb3_trlsd import RelabellingReplayBuffer, Transitions, collect_transitions
+from sb3_trlsd import RelabellingReplayBuffer, Transitions, collect_transitions, dqn_q_values
 from sb3_trlsd.experiments.baselines import DQN_SETTINGS, one_torch_thread
 from sb3_trlsd.features import gaussian_similarity
 from sb3_trlsd_envs.evaluation import greedy_expected_rewards
@@ -260,17 +260,6 @@ def test_save_and_load_replay_buffer_give_the_same_samples(tmp_path, source_tran
     with one_torch_thread():
         other.learn(total_timesteps=50)
     assert loaded.reward_heads[TARGET_TASK].n_samples == 100 + other.num_timesteps
-
-
-def dqn_q_values(model):
-    """``q_values(states, tasks)`` of a DQN on the maze's Dict observations (``greedy_expected_rewards``)."""
-
-    def q_values(states, tasks):
-        obs = {"state": th.as_tensor(states, dtype=th.float32), "task": th.as_tensor(tasks[:, None])}
-        with th.no_grad():
-            return model.q_net(obs).numpy()
-
-    return q_values
 
 
 # DQN_SETTINGS with 4 gradient steps per env step and a target update every 100: 15 rounds of Q-iteration
