@@ -9,7 +9,6 @@ import pytest
 from sb3_trlsd.cli import main
 from sb3_trlsd.experiments.claims import (
     CLAIMS,
-    SAME_RUNS,
     above,
     above_all,
     alike,
@@ -17,6 +16,7 @@ from sb3_trlsd.experiments.claims import (
     evaluate_claims,
     load_figures,
     more_sensitive,
+    same_runs,
     solved_by,
     updates_near,
 )
@@ -130,9 +130,9 @@ def test_the_claims_command_prints_and_writes_one_column_per_directory(tmp_path,
     assert main(["claims", str(empty)]) == 2
 
 
-def test_a_protocol_s_figure_with_today_s_results_says_it_is_today_s_runs(tmp_path):
-    today, fixed, continued = tmp_path / "today", tmp_path / "fixed", tmp_path / "continued"
-    for directory in (today, fixed, continued):
+def test_a_protocol_s_figure_with_an_earlier_column_s_results_says_whose_runs_they_are(tmp_path):
+    today, fixed, continued, both = (tmp_path / name for name in ("today", "fixed", "continued", "both"))
+    for directory in (today, fixed, continued, both):
         directory.mkdir()
     timed = {label: dict(entry, seconds_per_run=1.0) for label, entry in FIG8.items()}
     write_figure(today, "fig8", timed, None)
@@ -145,11 +145,14 @@ def test_a_protocol_s_figure_with_today_s_results_says_it_is_today_s_runs(tmp_pa
         },
     )
     write_figure(continued, "fig8", moved, "multitask-continue")
-    table = claims_table([load_figures(directory) for directory in (today, fixed, continued)])
-    solved = next(line for line in table.splitlines() if "near solved" in line).split(" | ")
+    write_figure(both, "fig8", moved, "no-restarts")  # runs Figure 8 as multitask-continue does
+    table = claims_table([load_figures(directory) for directory in (today, fixed, continued, both)])
+    solved_line = next(line for line in table.splitlines() if "near solved" in line)
+    solved = solved_line.removesuffix(" |").split(" | ")
     assert solved[2].startswith("250, 250, 250 episodes")
-    assert solved[3] == SAME_RUNS
+    assert solved[3] == same_runs("as-built")
     assert solved[4].startswith("260, 250, 250 episodes")
-    # Without today's column there is nothing to compare with: the numbers are given.
-    alone = claims_table([load_figures(fixed)])
-    assert SAME_RUNS not in alone and "250, 250, 250 episodes" in alone
+    assert solved[5] == same_runs("multitask-continue")
+    # Without an earlier column with those results there is nothing to refer to: the numbers are given.
+    alone = claims_table([load_figures(directory) for directory in (fixed, continued)])
+    assert "the same runs" not in alone and "250, 250, 250 episodes" in alone

@@ -252,7 +252,11 @@ def evaluate_claims(figures: Mapping[str, FigureResults]) -> list[Verdict | None
 
 
 TODAY = "as-built"  # the column the others are compared with
-SAME_RUNS = "as as-built (the same runs)"
+
+
+def same_runs(name: str) -> str:
+    """The cell of a figure whose results are the column ``name``'s: the same runs, not a second test."""
+    return f"as {name} (the same runs)"
 
 
 def _without_timings(value: Any) -> Any:
@@ -265,8 +269,10 @@ def _without_timings(value: Any) -> Any:
 def claims_table(columns: Sequence[tuple[str, Mapping[str, FigureResults]]]) -> str:
     """
     A Markdown table: one row per claim, one column per (protocol, figures). Where a protocol's figure has
-    exactly the results of today's (``as-built``, when it is a column), its cells say so instead of repeating
-    them: the protocol reaches none of that figure's runs, which were kept once (``Protocol.reaching``).
+    exactly the results of an earlier column's (today's, ``as-built``, when it is the first), its cells say
+    so instead of repeating them: the protocol reaches none of that figure's runs beyond the other's, which
+    were kept once (``Protocol.reaching``), e.g. a combination of presets under which a figure runs as under
+    one of them.
 
     :param columns: (protocol name, figure -> results) per column
     :return: the table
@@ -274,24 +280,28 @@ def claims_table(columns: Sequence[tuple[str, Mapping[str, FigureResults]]]) -> 
     header = ["figure", "paper's claim", *(name for name, _ in columns)]
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     verdicts = [evaluate_claims(figures) for _, figures in columns]
-    today = next((figures for name, figures in columns if name == TODAY), {})
-    same = [
+    same_as = [
         {
-            figure
+            figure: next(
+                (
+                    earlier_name
+                    for earlier_name, earlier in columns[:index]
+                    if figure in earlier and _without_timings(earlier[figure]) == _without_timings(results)
+                ),
+                None,
+            )
             for figure, results in figures.items()
-            if name != TODAY
-            and figure in today
-            and _without_timings(results) == _without_timings(today[figure])
         }
-        for name, figures in columns
+        for index, (_, figures) in enumerate(columns)
     ]
     for row, claim in enumerate(CLAIMS):
         cells = [claim.figure, claim.text]
-        for column_verdicts, same_figures in zip(verdicts, same, strict=True):
+        for column_verdicts, column_same_as in zip(verdicts, same_as, strict=True):
             verdict = column_verdicts[row]
+            earlier_name = column_same_as.get(claim.figure)
             if verdict is None:
                 cells.append("")
             else:
-                cells.append(SAME_RUNS if claim.figure in same_figures else verdict.cell())
+                cells.append(verdict.cell() if earlier_name is None else same_runs(earlier_name))
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
