@@ -251,9 +251,6 @@ def evaluate_claims(figures: Mapping[str, FigureResults]) -> list[Verdict | None
     return [claim.check(figures[claim.figure]) if claim.figure in figures else None for claim in CLAIMS]
 
 
-TODAY = "as-built"  # the column the others are compared with
-
-
 def same_runs(name: str) -> str:
     """The cell of a figure whose results are the column ``name``'s: the same runs, not a second test."""
     return f"as {name} (the same runs)"
