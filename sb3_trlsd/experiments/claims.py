@@ -277,19 +277,22 @@ def claims_table(columns: Sequence[tuple[str, Mapping[str, FigureResults]]]) -> 
     header = ["figure", "paper's claim", *(name for name, _ in columns)]
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     verdicts = [evaluate_claims(figures) for _, figures in columns]
+    untimed = [
+        {figure: _without_timings(results) for figure, results in figures.items()} for _, figures in columns
+    ]
     same_as = [
         {
             figure: next(
                 (
                     earlier_name
-                    for earlier_name, earlier in columns[:index]
-                    if figure in earlier and _without_timings(earlier[figure]) == _without_timings(results)
+                    for (earlier_name, _), earlier in zip(columns[:index], untimed[:index], strict=True)
+                    if earlier.get(figure) == results
                 ),
                 None,
             )
-            for figure, results in figures.items()
+            for figure, results in untimed[index].items()
         }
-        for index, (_, figures) in enumerate(columns)
+        for index in range(len(columns))
     ]
     for row, claim in enumerate(CLAIMS):
         cells = [claim.figure, claim.text]
