@@ -254,11 +254,13 @@ def benchmark_command(args: argparse.Namespace) -> int:
 
 def claims_command(args: argparse.Namespace) -> int:
     """
-    Print (and with ``--out``, write) the table of the paper's claims checked on each directory's figures.
+    Print (and with ``--out``, write) the table of the paper's claims checked on each directory's figures,
+    or with ``--runs`` the table of what ran under each preset and how long it took.
 
     :return: 0, or 2 when a directory holds no figure
     """
-    from sb3_trlsd.experiments.claims import claims_table, load_figures
+    from sb3_trlsd.experiments.claims import claims_table, load_figures, load_wall_times
+    from sb3_trlsd.experiments.study_runs import runs_table
 
     columns = []
     for directory in args.directories:
@@ -267,7 +269,10 @@ def claims_command(args: argparse.Namespace) -> int:
             print(f"sb3-trlsd claims: error: no figN.json in {directory}", file=sys.stderr)
             return 2
         columns.append((name, figures))
-    table = claims_table(columns)
+    if args.runs:
+        table = runs_table(columns, [load_wall_times(Path(directory)) for directory in args.directories])
+    else:
+        table = claims_table(columns)
     print(table)
     if args.out:
         Path(args.out).write_text(table + "\n")

@@ -181,6 +181,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     claims.add_argument("directories", nargs="+", help="directories of figN.json (one column each)")
     claims.add_argument("--out", default=None, help="also write the Markdown table to this file")
+    claims.add_argument(
+        "--runs",
+        action="store_true",
+        help="print instead what ran under each preset: each figure's wall time, or the earlier "
+        "directory whose runs it reads again, or 'not run'",
+    )
 
     benchmark = commands.add_parser(
         "benchmark",

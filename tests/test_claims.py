@@ -20,6 +20,7 @@ from sb3_trlsd.experiments.claims import (
     solved_by,
     updates_near,
 )
+from sb3_trlsd.experiments.protocols import PRESETS
 
 
 def aggregate(mean: float, se: float) -> dict:
@@ -73,9 +74,13 @@ def test_more_sensitive_compares_the_ranges():
     assert not more_sensitive(("s1", "s2"), ("k1", "k2"), "reward", "[500, 1000)")(results).holds
 
 
-def write_figure(directory, figure: str, results: dict, protocol: str | None) -> None:
+def write_figure(
+    directory, figure: str, results: dict, protocol: str | None, wall_time_seconds: float | None = None
+) -> None:
     parameters = {} if protocol is None else {"protocol": {"name": protocol}}
     data = {"figure": figure, "parameters": parameters, "results": results}
+    if wall_time_seconds is not None:
+        data["wall_time_seconds"] = wall_time_seconds
     (directory / f"{figure}.json").write_text(json.dumps(data))
 
 
@@ -156,3 +161,30 @@ def test_a_protocol_s_figure_with_an_earlier_column_s_results_says_whose_runs_th
     # Without an earlier column with those results there is nothing to refer to: the numbers are given.
     alone = claims_table([load_figures(directory) for directory in (fixed, continued)])
     assert "the same runs" not in alone and "250, 250, 250 episodes" in alone
+
+
+def test_the_runs_table_gives_wall_times_kept_runs_and_presets_not_run(tmp_path, capsys):
+    directories = {name: tmp_path / name for name in ("full", "continue", "both", "fixed")}
+    for directory in directories.values():
+        directory.mkdir()
+    write_figure(directories["full"], "fig8", FIG8, None, wall_time_seconds=3270.0)
+    write_figure(directories["full"], "fig5", {"m": method(0.5)}, None, wall_time_seconds=935.0)
+    continued = {label: dict(entry, near_solved_after_episodes=260) for label, entry in FIG8.items()}
+    write_figure(directories["continue"], "fig8", continued, "multitask-continue", wall_time_seconds=2646.0)
+    # A combination that reaches Figure 8 as the single change does: the same runs, read in a second.
+    write_figure(directories["both"], "fig8", continued, "no-restarts", wall_time_seconds=1.3)
+    write_figure(directories["both"], "fig5", {"m": method(0.6)}, "no-restarts", wall_time_seconds=630.0)
+    write_figure(directories["fixed"], "fig8", FIG8, "multitask-fixed-start")  # no wall time kept
+    assert main(["claims", *map(str, directories.values()), "--runs"]) == 0
+    rows = {line.split(" | ")[0].strip("| `"): line for line in capsys.readouterr().out.splitlines()}
+    assert rows["preset"] == "| preset | Figure 5 | Figure 6 | Figure 7 | Figure 8 |"
+    assert rows["as-built"] == "| `as-built` | 15.6 min | not run | not run | 54.5 min |"
+    assert rows["multitask-continue"] == "| `multitask-continue` | not run | not run | not run | 44.1 min |"
+    assert (
+        rows["no-restarts"]
+        == "| `no-restarts` | 10.5 min | not run | not run | `multitask-continue`'s runs |"
+    )
+    assert rows["multitask-fixed-start"].endswith("| `as-built`'s runs |")
+    assert rows["gamma-0.99"] == "| `gamma-0.99` | not run | not run | not run | not run |"
+    # Every preset has a row, in the order ``--protocol`` lists them.
+    assert [name for name in rows if name in PRESETS] == list(PRESETS)

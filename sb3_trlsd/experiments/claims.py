@@ -21,7 +21,17 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["CLAIMS", "SIGNIFICANT", "Claim", "Verdict", "claims_table", "evaluate_claims", "load_figures"]
+__all__ = [
+    "CLAIMS",
+    "SIGNIFICANT",
+    "Claim",
+    "Verdict",
+    "claims_table",
+    "earlier_same_runs",
+    "evaluate_claims",
+    "load_figures",
+    "load_wall_times",
+]
 
 SIGNIFICANT = 2.0  # standard errors of the difference
 
@@ -246,6 +256,21 @@ def load_figures(directory: Path) -> tuple[str, dict[str, FigureResults]]:
     return (names.pop() if names else "none"), figures
 
 
+def load_wall_times(directory: Path) -> dict[str, float]:
+    """
+    Each figure's wall time in a directory of ``figN.json`` files, as ``reproduce`` measured it.
+
+    :param directory: where ``sb3-trlsd reproduce ... --out`` wrote them
+    :return: figure -> seconds (a figure whose JSON has no wall time is left out)
+    """
+    times = {}
+    for path in sorted(Path(directory).glob("fig*.json")):
+        data = json.loads(path.read_text())
+        if "wall_time_seconds" in data:
+            times[data["figure"]] = float(data["wall_time_seconds"])
+    return times
+
+
 def evaluate_claims(figures: Mapping[str, FigureResults]) -> list[Verdict | None]:
     """Every claim of ``CLAIMS`` checked on the figures given (None where its figure is missing)."""
     return [claim.check(figures[claim.figure]) if claim.figure in figures else None for claim in CLAIMS]
@@ -263,6 +288,35 @@ def _without_timings(value: Any) -> Any:
     return value
 
 
+def earlier_same_runs(
+    columns: Sequence[tuple[str, Mapping[str, FigureResults]]],
+) -> list[dict[str, str | None]]:
+    """
+    For each column and figure, the first earlier column whose figure has exactly its results (timings
+    aside): the same runs, kept once and read again, or None for runs of its own.
+
+    :param columns: (protocol name, figure -> results) per column
+    :return: per column, figure -> the earlier column's name or None
+    """
+    untimed = [
+        {figure: _without_timings(results) for figure, results in figures.items()} for _, figures in columns
+    ]
+    return [
+        {
+            figure: next(
+                (
+                    earlier_name
+                    for (earlier_name, _), earlier in zip(columns[:index], untimed[:index], strict=True)
+                    if earlier.get(figure) == results
+                ),
+                None,
+            )
+            for figure, results in untimed[index].items()
+        }
+        for index in range(len(columns))
+    ]
+
+
 def claims_table(columns: Sequence[tuple[str, Mapping[str, FigureResults]]]) -> str:
     """
     A Markdown table: one row per claim, one column per (protocol, figures). Where a protocol's figure has
@@ -277,23 +331,7 @@ def claims_table(columns: Sequence[tuple[str, Mapping[str, FigureResults]]]) -> 
     header = ["figure", "paper's claim", *(name for name, _ in columns)]
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     verdicts = [evaluate_claims(figures) for _, figures in columns]
-    untimed = [
-        {figure: _without_timings(results) for figure, results in figures.items()} for _, figures in columns
-    ]
-    same_as = [
-        {
-            figure: next(
-                (
-                    earlier_name
-                    for (earlier_name, _), earlier in zip(columns[:index], untimed[:index], strict=True)
-                    if earlier.get(figure) == results
-                ),
-                None,
-            )
-            for figure, results in untimed[index].items()
-        }
-        for index in range(len(columns))
-    ]
+    same_as = earlier_same_runs(columns)
     for row, claim in enumerate(CLAIMS):
         cells = [claim.figure, claim.text]
         for column_verdicts, column_same_as in zip(verdicts, same_as, strict=True):
