@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from sb3_trlsd.features import grid_centres
+from sb3_trlsd.features import grid_axes, grid_centres
 
 __all__ = [
     "FEATURE_MAPS",
@@ -127,6 +127,7 @@ class RBFGrid(FeatureMap):
     sigma: Widths = 0.04
     centres: np.ndarray = field(init=False, repr=False, compare=False)
     widths: tuple[float, ...] = field(init=False, repr=False, compare=False)  # in state units, (d,)
+    axes: tuple[np.ndarray, ...] = field(init=False, repr=False, compare=False)  # centres per dimension
 
     def __post_init__(self) -> None:
         if not (isinstance(self.n_per_dim, (int, np.integer)) and self.n_per_dim >= 1):
@@ -140,6 +141,7 @@ class RBFGrid(FeatureMap):
             self, "widths", tuple(s * (h - lo) for s, lo, h in zip(sigma, low, high, strict=True))
         )
         object.__setattr__(self, "centres", grid_centres(np.array(low), np.array(high), self.n_per_dim))
+        object.__setattr__(self, "axes", tuple(grid_axes(np.array(low), np.array(high), self.n_per_dim)))
 
     @property
     def n_features(self) -> int:
@@ -157,8 +159,7 @@ class RBFGrid(FeatureMap):
         """
         states = np.asarray(states, dtype=np.float64).reshape(-1, len(self.low))
         phi = np.ones((len(states), 1))
-        for dim, (low, high, width) in enumerate(zip(self.low, self.high, self.widths, strict=True)):
-            centres = low + (np.arange(self.n_per_dim) + 0.5) * (high - low) / self.n_per_dim
+        for dim, (centres, width) in enumerate(zip(self.axes, self.widths, strict=True)):
             with np.errstate(over="ignore"):  # (n, n_per_dim)
                 factor = np.exp(-((states[:, dim : dim + 1] - centres) ** 2) / (2.0 * width**2))
             # Outer product, the first dimension varying slowest as in grid_centres (eq. 11 factorised).

@@ -10,7 +10,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-__all__ = ["gaussian_similarity", "grid_centres", "similarity_widths", "squared_distances"]
+__all__ = ["gaussian_similarity", "grid_axes", "grid_centres", "similarity_widths", "squared_distances"]
 
 DIRECT_POINTS = 4  # up to this many query points, distances are taken directly (see squared_distances)
 
@@ -97,9 +97,21 @@ def grid_centres(low: np.ndarray, high: np.ndarray, n_per_dim: int) -> np.ndarra
     :return: (n_per_dim ** d, d), the first coordinate varying slowest: on the maze, s_ij is row
         5 (i - 1) + (j - 1), the maze's task index
     """
+    # indexing="ij" makes the first axis vary slowest once flattened.
+    axes = grid_axes(low, high, n_per_dim)
+    return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, len(axes))
+
+
+def grid_axes(low: np.ndarray, high: np.ndarray, n_per_dim: int) -> list[np.ndarray]:
+    """
+    The cell centres of a regular grid along each dimension (``grid_centres`` is their product).
+
+    :param low: lower corner of the box, (d,)
+    :param high: upper corner of the box, (d,)
+    :param n_per_dim: cells per dimension
+    :return: d arrays of shape (n_per_dim,)
+    """
     low, high = np.asarray(low, dtype=np.float64), np.asarray(high, dtype=np.float64)
-    axes = [
+    return [
         lo + (np.arange(n_per_dim) + 0.5) * (hi - lo) / n_per_dim for lo, hi in zip(low, high, strict=True)
     ]
-    # indexing="ij" makes the first axis vary slowest once flattened.
-    return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, len(low))
