@@ -78,10 +78,11 @@ def run_once(
 
 
 def mean_and_error(values: list[float]) -> str:
-    """Mean ± standard error of the mean."""
+    """Mean ± standard error of the mean; the mean alone, marked, for a single run (no error to give)."""
     array = np.asarray(values)
-    error = array.std(ddof=1) / np.sqrt(len(array)) if len(array) > 1 else float("nan")
-    return f"{array.mean():.3f} ± {error:.3f}"
+    if len(array) < 2:
+        return f"{array.mean():.3f} (one run)"
+    return f"{array.mean():.3f} ± {array.std(ddof=1) / np.sqrt(len(array)):.3f}"
 
 
 def main() -> None:
