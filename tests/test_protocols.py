@@ -19,6 +19,7 @@ from sb3_trlsd.experiments.batches import multitask_batch, run_source_seed, sour
 from sb3_trlsd.experiments.env_batches import env_batch
 from sb3_trlsd.experiments.protocols import (
     AS_BUILT,
+    AS_BUILT_NAME,
     DEFAULT_PROTOCOL,
     PRESETS,
     Protocol,
@@ -117,7 +118,8 @@ def tiny_transfer_batch(method: Method, protocol: Protocol, **kwargs) -> list:
 # ----------------------------------------------------------------------------------------- the registry
 def test_every_preset_but_today_s_is_one_change_from_it_or_a_named_combination_of_them():
     """A preset that changed two choices (or none) would confound the study's one-change comparisons."""
-    assert PRESETS[DEFAULT_PROTOCOL].protocol == AS_BUILT == Protocol()
+    assert PRESETS[AS_BUILT_NAME].protocol == AS_BUILT == Protocol()
+    assert PRESETS[DEFAULT_PROTOCOL].combines, "the default is the study's combination, not a single change"
     for name, entry in PRESETS.items():
         assert entry.name == name and entry.changes and entry.why
         if entry.combines:
@@ -125,7 +127,7 @@ def test_every_preset_but_today_s_is_one_change_from_it_or_a_named_combination_o
             parts = [changed_fields(PRESETS[part].protocol) for part in entry.combines]
             assert all(len(changes) == 1 for changes in parts)
             assert changed_fields(entry.protocol) == {k: v for changes in parts for k, v in changes.items()}
-        elif name != DEFAULT_PROTOCOL:
+        elif name != AS_BUILT_NAME:
             assert len(changed_fields(entry.protocol)) == 1, name
     assert len({entry.protocol for entry in PRESETS.values()}) == len(PRESETS)
     # Every choice has at least one alternative preset.
@@ -183,7 +185,7 @@ def test_a_combination_reaches_each_run_as_the_single_change_that_reaches_it():
     assert preset("no-restarts").reaching("ridge", multitask=True) == preset("multitask-continue")
 
 
-@pytest.mark.parametrize("name", [name for name in PRESETS if name != DEFAULT_PROTOCOL])
+@pytest.mark.parametrize("name", [name for name in PRESETS if name != AS_BUILT_NAME])
 def test_a_run_a_preset_does_not_reach_is_today_s_run(name):
     """What ``reaching`` drops must not change a run: the kept runs of today stand for the preset's."""
     multitask_runs = {"n_turns": 1, "episode_steps": 6}
@@ -534,16 +536,20 @@ def without_timings(data: dict) -> dict:
 
 
 @pytest.mark.parametrize("figure", ["fig1", "fig8"])
-def test_the_json_records_the_protocol_and_today_s_is_the_default(figure, tiny_figures, tmp_path, capsys):
+def test_the_json_records_the_protocol_and_the_study_s_is_the_default(figure, tiny_figures, tmp_path, capsys):
     default = reproduce_figure(figure, tmp_path / "default", "--no-cache")
-    named = reproduce_figure(figure, tmp_path / "named", "--no-cache", "--protocol", "as-built")
-    assert default["parameters"]["protocol"] == named["parameters"]["protocol"] == protocol_record(AS_BUILT)
+    named = reproduce_figure(figure, tmp_path / "named", "--no-cache", "--protocol", "no-restarts")
+    assert DEFAULT_PROTOCOL == "no-restarts"
+    assert default["parameters"]["protocol"] == named["parameters"]["protocol"]
+    assert default["parameters"]["protocol"] == protocol_record(preset("no-restarts"))
     assert without_timings(default) == without_timings(named)
+    today = reproduce_figure(figure, tmp_path / "today", "--no-cache", "--protocol", AS_BUILT_NAME)
+    assert today["parameters"]["protocol"] == protocol_record(AS_BUILT)
     other = "no-online-restarts" if figure == "fig1" else "multitask-fixed-start"
     changed = reproduce_figure(figure, tmp_path / "other", "--no-cache", "--protocol", other)
     assert changed["parameters"]["protocol"]["name"] == other
     assert changed["parameters"]["protocol"]["choices"] == json.loads(json.dumps(preset(other).choices()))
-    assert without_timings(changed) != without_timings(default)
+    assert without_timings(changed) != without_timings(today)
 
 
 def test_runs_of_different_protocols_are_kept_apart(tiny_figures, tmp_path, capsys):

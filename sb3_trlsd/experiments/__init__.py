@@ -42,7 +42,7 @@ def reproduce(
     cache: str | Path | None = None,
     backend: str = "loky",
     address: str | None = None,
-    protocol: str = "as-built",
+    protocol: str | None = None,
     options: Mapping[str, Any] | None = None,
 ) -> dict:
     """
@@ -60,7 +60,8 @@ def reproduce(
         extra ``sb3-trlsd[cluster]``); the kept runs stay on this machine either way
     :param address: (ray) the cluster to join: ``"auto"``, ``"host:port"`` or ``"ray://host:port"``; None:
         start a local one
-    :param protocol: the name of the choices the paper leaves open (``protocols.PRESETS``; default: today's)
+    :param protocol: the name of the choices the paper leaves open (``protocols.PRESETS``; None:
+        ``protocols.DEFAULT_PROTOCOL``, the study's best-supported ``no-restarts``)
     :param options: a study's own options (``STUDY_OPTIONS``, e.g. ``{"tuning_runs": 100}`` for ``beyond``)
     :return: the figure's JSON summary
     """
@@ -79,7 +80,7 @@ def reproduce(
     if workers < 1:
         raise ValueError(f"workers must be >= 1, got {workers}")
     from sb3_trlsd.experiments.backends import Backend
-    from sb3_trlsd.experiments.protocols import protocol_named
+    from sb3_trlsd.experiments.protocols import DEFAULT_PROTOCOL, protocol_named
     from sb3_trlsd.experiments.reproduction import Reproduction
 
     how = Reproduction(
@@ -88,7 +89,7 @@ def reproduce(
         workers=workers,
         cache=None if cache is None else Path(cache),
         backend=Backend(backend, address),
-        protocol=protocol_named(protocol),
+        protocol=protocol_named(DEFAULT_PROTOCOL if protocol is None else protocol),
     )
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)

@@ -8,7 +8,7 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 
 from sb3_trlsd.experiments.claims import FigureResults, earlier_same_runs
-from sb3_trlsd.experiments.protocols import DEFAULT_PROTOCOL, PRESETS
+from sb3_trlsd.experiments.protocols import AS_BUILT_NAME, PRESETS
 
 __all__ = ["STUDY_FIGURES", "runs_table"]
 
@@ -42,7 +42,7 @@ def runs_table(
         "|" + "---|" * (len(figures) + 1),
     ]
     for name in PRESETS:
-        if name == DEFAULT_PROTOCOL and name not in given:
+        if name == AS_BUILT_NAME and name not in given:
             continue
         cells = []
         for figure in figures:
