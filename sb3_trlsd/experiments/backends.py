@@ -79,6 +79,18 @@ def call(index: int, function: Callable[..., Result], args: tuple, kwargs: dict)
         return index, function(*args, **kwargs)
 
 
+def _loky_worker_call(
+    index: int, function: Callable[..., Result], args: tuple, kwargs: dict
+) -> tuple[int, Result]:
+    """
+    ``call`` in a loky worker, which leaves SIGINT to the command: Ctrl-C in a terminal reaches the whole
+    process group, and a worker raising ``KeyboardInterrupt`` between two runs (outside any job: loky's
+    idle loop) would print multiprocessing's traceback. The command stops the pool itself, workers included.
+    """
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    return call(index, function, args, kwargs)
+
+
 def cluster_call(fingerprint: str, index: int, function: Callable, args: tuple, kwargs: dict) -> bytes:
     """
     ``call`` on a node of a Ray cluster, once the node is found to run the driver's code.
@@ -127,7 +139,7 @@ def _loky_finished(
 ) -> Iterator[tuple[int, Result]]:
     # One run per dispatch (batch_size=1) and 2 per worker queued at most: a finished run is kept at once.
     parallel = Parallel(n_jobs=workers, backend="loky", return_as="generator_unordered", batch_size=1)
-    results = parallel(delayed(call)(index, function, *jobs[index]) for index in indices)
+    results = parallel(delayed(_loky_worker_call)(index, function, *jobs[index]) for index in indices)
     try:
         yield from results
     finally:
