@@ -24,10 +24,9 @@ The choices, with the options a careful reader of the paper could defend (today'
 8. R~ of an unvisited cell in the discrete setting (``tabular_unvisited``): eq. 10 with the count floored
    (an unvisited cell outranks every visited one), or a value, R-MAX's R_max = 1.
 
-Presets: today's choices (``"as-built"``: the defaults of ``TRLSD``, the maze and the heads, and the
-README's figures), one preset per single change from them, and the study's best-supported combination
-(``"no-restarts"``: the online phases without restarts), which ``reproduce`` runs unless told otherwise
-(``DEFAULT_PROTOCOL``): under it 11 of the 16 claims the study checks hold, against 8 as built. A
+Presets: today's choices (``"as-built"``: the library's defaults), one preset per single change from them,
+and the study's best-supported combination (``"no-restarts"``: the online phases without restarts), which
+``reproduce`` runs unless told otherwise (``DEFAULT_PROTOCOL``). A
 ``Protocol`` is passed explicitly down to the envs and models a figure builds (``runner.Method.make_model``,
 ``batches.transfer_batch``, ``runner.multitask_env``); a figure's JSON records it (``protocol_record``). The
 run cache keys each run on the choices that reach it (``Protocol.reaching``): a preset's runs of the methods
@@ -203,8 +202,7 @@ class Protocol:
 
 AS_BUILT = Protocol()
 AS_BUILT_NAME = "as-built"  # today's choices, the baseline every single change is made from
-# What ``reproduce`` runs without ``--protocol``: the study's best-supported reading (README, "What the
-# paper's claims depend on"); today's choices keep their name and stay the library's defaults.
+# What ``reproduce`` runs without ``--protocol``: the study's best-supported reading (see the README).
 DEFAULT_PROTOCOL = "no-restarts"
 
 
