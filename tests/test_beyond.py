@@ -10,6 +10,7 @@ import json
 import numpy as np
 import pytest
 import scipy.stats
+from matplotlib.figure import Figure
 from matplotlib.image import imread
 
 from sb3_trlsd.cli import main
@@ -54,9 +55,20 @@ class Recorder:
 
 @pytest.fixture(scope="module")
 def study(tmp_path_factory):
-    """One tiny study (both mazes, the MLP on one run), its JSON and every ``transfer_runs`` call it made."""
+    """
+    One tiny study (both mazes, the MLP on one run), its JSON, every ``transfer_runs`` call it made and the
+    titles of the figures it drew.
+    """
     monkeypatch = pytest.MonkeyPatch()
     recorder = Recorder(monkeypatch)
+    titles = []
+    suptitle = Figure.suptitle
+
+    def recording(self, title, *args, **kwargs):
+        titles.append(title)
+        return suptitle(self, title, *args, **kwargs)
+
+    monkeypatch.setattr(Figure, "suptitle", recording)
     out = tmp_path_factory.mktemp("beyond")
     try:
         data = beyond.reproduce(
@@ -70,7 +82,7 @@ def study(tmp_path_factory):
         )
     finally:
         monkeypatch.undo()
-    return out, data, recorder.calls
+    return out, data, recorder.calls, titles
 
 
 def test_tuning_seeds_are_disjoint_from_the_evaluation_seeds(study):
@@ -78,7 +90,7 @@ def test_tuning_seeds_are_disjoint_from_the_evaluation_seeds(study):
     Every tuning call runs on seed + TUNING_SEED_OFFSET and its own source sets, every evaluation call on the
     seed itself: the run seeds and source-set seeds of the two never meet, and the JSON records them.
     """
-    _, data, calls = study
+    _, data, calls, _ = study
     tuning = [call for call in calls if call["runs"] == TUNING_RUNS]
     evaluation = [call for call in calls if call["runs"] != TUNING_RUNS]
     assert len(tuning) == 2 and len(evaluation) == 4  # per maze: a tuning, a linear and an MLP evaluation
@@ -108,7 +120,7 @@ def test_tuning_seeds_are_disjoint_from_the_evaluation_seeds(study):
 
 def test_the_selection_is_the_best_tuning_score_of_each_method(study):
     """The selected configuration has the highest mean over the tuning runs of the last-500 reward."""
-    _, data, calls = study
+    _, data, calls, _ = study
     window = selection_window(N_ONLINE)
     for maze, call in zip(
         data["tuning"], [call for call in calls if call["runs"] == TUNING_RUNS], strict=True
@@ -154,12 +166,19 @@ def test_the_known_reward_wins_a_tuning_against_no_transfer(tmp_path):
     assert tuned["selected"] == "known" and tuned["scores"]["known"] > tuned["scores"]["no transfer"] + 0.2
 
 
+def test_both_figures_name_the_protocol(study):
+    out, _, _, titles = study
+    assert {path.name for path in out.glob("*.png")} == {"beyond.png", "beyond_improvement.png"}
+    named = [" ".join(title.split()).endswith("(protocol: as-built)") for title in titles]
+    assert named == [True, True], titles
+
+
 def test_the_json_has_every_field_and_aggregates_the_records(study):
     """
     Every field of the summary is there, and its numbers are the runs': the mean and clustered standard
     error of the last-500 window, the IQM, the fraction of the known reward and P(X > eq. 9), by hand.
     """
-    out, data, calls = study
+    out, data, calls, _ = study
     on_disk = json.loads((out / "beyond.json").read_text())
     assert on_disk == json.loads(json.dumps(data))
     assert set(data) >= {"figure", "package_version", "seed", "wall_time_seconds", "parameters", "grids"}
@@ -283,7 +302,7 @@ def test_the_best_curve_of_each_maze_against_the_goal():
 
 def test_the_files_are_written(study):
     """beyond.csv (a row per transition and curve), beyond.png, beyond_improvement.png, beyond.json."""
-    out, data, _ = study
+    out, data, _, _ = study
     assert sorted(path.name for path in out.iterdir()) == [
         "beyond.csv",
         "beyond.json",

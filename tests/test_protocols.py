@@ -11,12 +11,14 @@ import json
 import gymnasium as gym
 import numpy as np
 import pytest
+from matplotlib.figure import Figure
 
 from sb3_trlsd import TRLSD, RidgeRewardHead, TabularRewardHead
 from sb3_trlsd.cli import main
 from sb3_trlsd.experiments import batches, multitask, reproduce, runner
 from sb3_trlsd.experiments.batches import multitask_batch, run_source_seed, source_seed, transfer_batch
 from sb3_trlsd.experiments.env_batches import env_batch
+from sb3_trlsd.experiments.figures import protocol_title
 from sb3_trlsd.experiments.protocols import (
     AS_BUILT,
     AS_BUILT_NAME,
@@ -550,6 +552,37 @@ def test_the_json_records_the_protocol_and_the_study_s_is_the_default(figure, ti
     assert changed["parameters"]["protocol"]["name"] == other
     assert changed["parameters"]["protocol"]["choices"] == json.loads(json.dumps(preset(other).choices()))
     assert without_timings(changed) != without_timings(today)
+
+
+@pytest.fixture
+def figure_titles(monkeypatch) -> list[str]:
+    """The titles of the figures drawn (every figure is titled through ``Figure.suptitle``)."""
+    titles = []
+    suptitle = Figure.suptitle
+
+    def recording(self, title, *args, **kwargs):
+        titles.append(title)
+        return suptitle(self, title, *args, **kwargs)
+
+    monkeypatch.setattr(Figure, "suptitle", recording)
+    return titles
+
+
+@pytest.mark.parametrize("figure", ["fig2", "fig5", "fig7", "fig8"])
+def test_a_figure_s_title_names_its_protocol(figure, tiny_figures, figure_titles, tmp_path, capsys):
+    """A figure under one protocol must not pass for another's: its PNG's title names the protocol."""
+    for name in (DEFAULT_PROTOCOL, AS_BUILT_NAME, "gamma-0.95"):
+        figure_titles.clear()
+        reproduce_figure(figure, tmp_path / name, "--no-cache", "--protocol", name)
+        assert figure_titles and all(
+            " ".join(title.split()).endswith(f"(protocol: {name})") for title in figure_titles
+        ), figure_titles
+
+
+def test_a_title_names_choices_no_preset_has_custom():
+    assert protocol_title("Figure 5", AS_BUILT) == f"Figure 5 (protocol: {AS_BUILT_NAME})"
+    custom = dataclasses.replace(AS_BUILT, gamma=0.5)
+    assert protocol_title("Figure 5", custom) == "Figure 5 (protocol: custom)"
 
 
 def test_runs_of_different_protocols_are_kept_apart(tiny_figures, tmp_path, capsys):

@@ -54,7 +54,7 @@ from typing import Any
 
 from sb3_trlsd.experiments.batches import SOURCE_SETS, transfer_runs
 from sb3_trlsd.experiments.beyond_report import Curve, best_against_goal, curve_label, study_results, table
-from sb3_trlsd.experiments.figures import curves_of, write_curves_figure
+from sb3_trlsd.experiments.figures import curves_of, protocol_title, write_curves_figure
 from sb3_trlsd.experiments.known_reward import KNOWN
 from sb3_trlsd.experiments.reporting import summary, write_json
 from sb3_trlsd.experiments.reproduction import Reproduction
@@ -271,15 +271,20 @@ def reproduce(
         (f"{maze}, {policy}", [label for label, m, q, _ in rows if (m, q) == (maze, policy)])
         for maze, policy in dict.fromkeys((maze, policy) for _, maze, policy, _ in rows)
     ]
+    title = (
+        f"Beyond the paper: each method tuned on {tuning_runs} runs per configuration, evaluated on {runs}"
+    )
     write_curves_figure(
         out,
         "beyond",
-        f"Beyond the paper: each method tuned on {tuning_runs} runs per configuration, evaluated on {runs}",
+        protocol_title(title, how.protocol),
         curves_of(records),
         panels,
         legend={label: method for label, _, _, method in rows},
     )
-    results, figures = study_results(out, records, rows, tuning, windows, window, how.seed)
+    results, figures = study_results(
+        out, records, rows, tuning, windows, window, how.seed, protocol=how.protocol
+    )
     files = ["beyond.png", "beyond.csv", "beyond.json", *figures]
 
     parameters = {

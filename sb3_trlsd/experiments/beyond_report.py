@@ -13,8 +13,9 @@ from typing import Any
 import numpy as np
 
 from sb3_trlsd.experiments.bootstrap import aggregate_intervals, independent_bootstrap_ci, interval_cell
-from sb3_trlsd.experiments.figures import transfer_results, write_improvement_figure
+from sb3_trlsd.experiments.figures import protocol_title, transfer_results, write_improvement_figure
 from sb3_trlsd.experiments.known_reward import KNOWN
+from sb3_trlsd.experiments.protocols import Protocol
 from sb3_trlsd.experiments.runner import RunRecord
 from sb3_trlsd.experiments.statistics import mean_ratio, scores_by_task
 from sb3_trlsd.experiments.tuning import REFERENCE, window_scores
@@ -91,6 +92,7 @@ def _write_improvement(
     rows: Sequence[Curve],
     window: tuple[int, int],
     seed: int,
+    protocol: Protocol,
 ) -> dict[tuple[str, str], tuple[float, float, float]]:
     """
     ``beyond_improvement.png``: P(method > eq. 9) of each method with the same maze and Q, over ``window``
@@ -110,8 +112,11 @@ def _write_improvement(
         out / "beyond_improvement.png",
         {label: _task_scores(records[label], window) for label, *_ in rows},
         pairs,
-        f"P(method > {REFERENCE}) over transitions [{window[0]}, {window[1]}), with 95% stratified "
-        "bootstrap intervals",
+        protocol_title(
+            f"P(method > {REFERENCE}) over transitions [{window[0]}, {window[1]}), with 95% stratified "
+            "bootstrap intervals",
+            protocol,
+        ),
         seed=seed,
     )
 
@@ -124,6 +129,8 @@ def study_results(
     windows: Sequence[tuple[int, int]],
     window: tuple[int, int],
     seed: int,
+    *,
+    protocol: Protocol,
 ) -> tuple[dict[str, dict[str, Any]], list[str]]:
     """
     Each curve's entry of the JSON: its window means (``transfer_results``), maze, Q and method, its
@@ -137,6 +144,7 @@ def study_results(
     :param windows: the windows of the intervals
     :param window: the selection window
     :param seed: seed of the resamples
+    :param protocol: the protocol of the runs, named in the figure's title
     :return: the entries by label, and the files written (``beyond_improvement.png``, or none)
     """
     results = transfer_results(records, windows)
@@ -146,7 +154,7 @@ def study_results(
         results[label].update(method_statistics(records[label], windows, window, known, seed))
         if method in tuning[maze]:
             results[label]["configuration"] = tuning[maze][method]["selected"]
-    improvement = _write_improvement(out, records, rows, window, seed)
+    improvement = _write_improvement(out, records, rows, window, seed, protocol)
     for (label, _), interval in improvement.items():
         results[label]["p_improvement"] = _interval(interval)
     for entry in results.values():

@@ -10,12 +10,13 @@ import time
 from pathlib import Path
 
 from sb3_trlsd.experiments.batches import transfer_runs
-from sb3_trlsd.experiments.figures import write_transfer_figure
+from sb3_trlsd.experiments.figures import protocol_title, write_transfer_figure
 from sb3_trlsd.experiments.reproduction import Reproduction
 from sb3_trlsd.experiments.runner import Method
 from sb3_trlsd_envs import CORNER_TASKS
 
 DEFAULT_RUNS = 200  # the paper gives no count for Figure 6: 50 runs of each corner
+TITLE = "Figure 6: corner tasks, the corners prior against the continuous setting"
 METHODS = [
     Method("continuous, ratio 2"),
     Method("corners prior, ratio 2", reward_head="corners"),
@@ -37,7 +38,7 @@ def reproduce(out: Path, how: Reproduction) -> dict:
     return write_transfer_figure(
         out,
         "fig6",
-        "Figure 6: corner tasks, the corners prior against the continuous setting",
+        protocol_title(TITLE, how.protocol),
         METHODS,
         records,
         [(0, 100), (0, 200), (0, 1000), (500, 1000)],

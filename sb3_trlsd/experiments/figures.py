@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 
 from sb3_trlsd.experiments.bootstrap import improvement_intervals
+from sb3_trlsd.experiments.protocols import Protocol, protocol_record
 from sb3_trlsd.experiments.reporting import (
     mean_and_standard_error,
     plot_curves,
@@ -29,6 +30,7 @@ __all__ = [
     "curves_of",
     "draw_snapshot",
     "new_figure",
+    "protocol_title",
     "save_figure",
     "transfer_results",
     "update_counts",
@@ -48,6 +50,17 @@ def new_figure(n_panels: int, width: float = 5.5, height: float = 4.2) -> tuple[
     figure = Figure(figsize=(width * n_panels, height), dpi=110)
     FigureCanvasAgg(figure)
     return figure, [figure.add_subplot(1, n_panels, i + 1) for i in range(n_panels)]
+
+
+def protocol_title(title: str, protocol: Protocol) -> str:
+    """
+    A figure's title that names the protocol it ran under (its preset's name, ``"custom"`` for choices no
+    preset has, as the JSON records it): a figure under one protocol must not pass for another's.
+
+    :param title: what the figure shows
+    :param protocol: the choices the figure's runs made
+    """
+    return f"{title} (protocol: {protocol_record(protocol)['name']})"
 
 
 def save_figure(figure: Any, path: Path, title: str) -> None:

@@ -9,12 +9,13 @@ import time
 from pathlib import Path
 
 from sb3_trlsd.experiments.batches import transfer_runs
-from sb3_trlsd.experiments.figures import write_transfer_figure
+from sb3_trlsd.experiments.figures import protocol_title, write_transfer_figure
 from sb3_trlsd.experiments.reproduction import Reproduction
 from sb3_trlsd.experiments.runner import Method, transfer_run
 from sb3_trlsd_envs import N_TASKS
 
 DEFAULT_RUNS = 100  # the paper gives no count for Figure 1: 4 runs of each of the 25 tasks
+TITLE = "Figure 1: known reward (CI = 0), 25,000 random source transitions"
 PICTURE_TASK = 4  # tau_15, the bottom-left corner cell
 PICTURE_STEP = 30
 KNOWN = Method("known reward", reward_head="known", kappa=0.0)
@@ -35,7 +36,7 @@ def reproduce(out: Path, how: Reproduction) -> dict:
     return write_transfer_figure(
         out,
         "fig1",
-        "Figure 1: known reward (CI = 0), 25,000 random source transitions",
+        protocol_title(TITLE, how.protocol),
         [KNOWN],
         records,
         [(0, 100), (0, 1000), (500, 1000)],

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from sb3_trlsd.experiments.batches import batch_runs, multitask_batch
-from sb3_trlsd.experiments.figures import new_figure, save_figure, update_counts
+from sb3_trlsd.experiments.figures import new_figure, protocol_title, save_figure, update_counts
 from sb3_trlsd.experiments.jobs import run_jobs
 from sb3_trlsd.experiments.reporting import (
     mean_and_standard_error,
@@ -31,6 +31,7 @@ DEFAULT_RUNS = 200  # paper: 200 runs
 TURNS = 20
 EPISODE_STEPS = 50
 NEAR_SOLVED = 0.9  # near solved: a turn's reward reaches this fraction of the last turn's
+TITLE = "Figure 8: multi-task learning of the 25 tasks, no source data"
 METHODS = [
     Method("non-optimistic (kappa=0)", kappa=0.0),
     Method("similarity on states (eq. 6)"),
@@ -78,7 +79,11 @@ def turn_curves(turns: dict[str, np.ndarray]) -> dict[str, dict[str, list[float]
 
 
 def draw_figure(
-    path: Path, episodes: dict[str, np.ndarray], turns: dict[str, np.ndarray], near_solved: dict[str, int]
+    path: Path,
+    episodes: dict[str, np.ndarray],
+    turns: dict[str, np.ndarray],
+    near_solved: dict[str, int],
+    title: str = TITLE,
 ) -> None:
     """
     The paper's Figure 8, the reward of each episode, and beside it the reward of each turn (each task
@@ -88,6 +93,7 @@ def draw_figure(
     :param episodes: label -> (runs, episodes) average reward of each episode
     :param turns: label -> (runs, turns) average reward of each turn
     :param near_solved: label -> episodes after which the method is near solved
+    :param title: the figure's title
     """
     colors = {label: f"C{index}" for index, label in enumerate(episodes)}
     figure, (by_episode, by_turn) = new_figure(2, width=6.0)
@@ -102,7 +108,7 @@ def draw_figure(
     for label, episode in near_solved.items():
         by_turn.axvline(episode, color=colors[label], linestyle=":", linewidth=1.2)
     by_turn.set_title(f"each turn (25 episodes); dotted: near solved ({NEAR_SOLVED:.0%} of the last)")
-    save_figure(figure, path, "Figure 8: multi-task learning of the 25 tasks, no source data")
+    save_figure(figure, path, title)
 
 
 def reproduce(out: Path, how: Reproduction) -> dict:
@@ -145,7 +151,7 @@ def reproduce(out: Path, how: Reproduction) -> dict:
     write_curves_csv(out / "fig8.csv", "episode", episodes)
     turns = {label: turn_rewards(values) for label, values in episodes.items()}
     near_solved = {label: near_solved_episode(values) for label, values in episodes.items()}
-    draw_figure(out / "fig8.png", episodes, turns, near_solved)
+    draw_figure(out / "fig8.png", episodes, turns, near_solved, protocol_title(TITLE, how.protocol))
 
     results = {}
     for i, method in enumerate(METHODS):

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from sb3_trlsd.experiments.batches import transfer_runs
-from sb3_trlsd.experiments.figures import new_figure, save_figure, update_counts
+from sb3_trlsd.experiments.figures import new_figure, protocol_title, save_figure, update_counts
 from sb3_trlsd.experiments.reporting import (
     source_sets_of,
     summary,
@@ -66,9 +66,8 @@ def reproduce(out: Path, how: Reproduction) -> dict:
         ax.set_ylabel("average reward")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
-    save_figure(
-        figure, out / "fig7.png", f"Figure 7: sensitivity of the continuous setting ({runs} runs per value)"
-    )
+    title = f"Figure 7: sensitivity of the continuous setting ({runs} runs per value)"
+    save_figure(figure, out / "fig7.png", protocol_title(title, how.protocol))
 
     results = {
         label: {"reward": windows[label], "policy_updates": update_counts(records[label])} for label in curves

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sb3_trlsd.experiments.figures import draw_snapshot, new_figure, save_figure
+from sb3_trlsd.experiments.figures import draw_snapshot, new_figure, protocol_title, save_figure
 from sb3_trlsd.experiments.reporting import summary, write_curves_csv, write_json
 from sb3_trlsd.experiments.reproduction import Reproduction
 from sb3_trlsd.experiments.runner import Method, transfer_run
@@ -40,7 +40,8 @@ def _reproduce(name: str, out: Path, how: Reproduction) -> dict:
     figure, axes = new_figure(len(steps), width=4.2, height=4.5)
     for ax, snapshot in zip(axes, record.snapshots, strict=True):
         draw_snapshot(ax, snapshot, TASK, f"after {snapshot.step} transitions")
-    save_figure(figure, out / f"{name}.png", f"{title}, target tau_15 (green: R^, red: greedy policy)")
+    title = f"{title}, target tau_15 (green: R^, red: greedy policy)"
+    save_figure(figure, out / f"{name}.png", protocol_title(title, how.protocol))
     write_curves_csv(out / f"{name}.csv", "transition", {method.label: record.rewards[None]})
     data = summary(
         name,

@@ -10,12 +10,13 @@ import time
 from pathlib import Path
 
 from sb3_trlsd.experiments.batches import transfer_runs
-from sb3_trlsd.experiments.figures import write_transfer_figure
+from sb3_trlsd.experiments.figures import protocol_title, write_transfer_figure
 from sb3_trlsd.experiments.reproduction import Reproduction
 from sb3_trlsd.experiments.runner import Method
 from sb3_trlsd_envs import N_TASKS
 
 DEFAULT_RUNS = 500  # paper: 500 independent runs, 20 per task
+TITLE = "Figure 5: 25 tasks, 25,000 random source transitions, then 1,000 online"
 METHODS = [
     Method("no transfer", transfer=False),
     Method("non-optimistic (kappa=0)", kappa=0.0),
@@ -43,7 +44,7 @@ def reproduce(out: Path, how: Reproduction, methods: list[Method] = METHODS) -> 
     return write_transfer_figure(
         out,
         "fig5",
-        "Figure 5: 25 tasks, 25,000 random source transitions, then 1,000 online",
+        protocol_title(TITLE, how.protocol),
         methods,
         records,
         WINDOWS,
