@@ -10,7 +10,6 @@ import json
 import numpy as np
 import pytest
 import scipy.stats
-from matplotlib.figure import Figure
 from matplotlib.image import imread
 
 from sb3_trlsd.cli import main
@@ -30,6 +29,7 @@ from sb3_trlsd.experiments.reproduction import Reproduction
 from sb3_trlsd.experiments.runner import Method
 from sb3_trlsd.experiments.tuning import TUNING_BATCH_RUNS, tuning_source_sets
 from sb3_trlsd_envs import CELL_NOISE_STDS
+from tests.conftest import record_figure_titles
 
 RUNS, TUNING_RUNS, MLP_RUNS, SEED = 4, 3, 1, 7
 N_SOURCE, N_ONLINE = 300, 30
@@ -61,14 +61,7 @@ def study(tmp_path_factory):
     """
     monkeypatch = pytest.MonkeyPatch()
     recorder = Recorder(monkeypatch)
-    titles = []
-    suptitle = Figure.suptitle
-
-    def recording(self, title, *args, **kwargs):
-        titles.append(title)
-        return suptitle(self, title, *args, **kwargs)
-
-    monkeypatch.setattr(Figure, "suptitle", recording)
+    titles = record_figure_titles(monkeypatch)
     out = tmp_path_factory.mktemp("beyond")
     try:
         data = beyond.reproduce(

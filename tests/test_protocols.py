@@ -11,7 +11,6 @@ import json
 import gymnasium as gym
 import numpy as np
 import pytest
-from matplotlib.figure import Figure
 
 from sb3_trlsd import TRLSD, RidgeRewardHead, TabularRewardHead
 from sb3_trlsd.cli import main
@@ -552,20 +551,6 @@ def test_the_json_records_the_protocol_and_the_study_s_is_the_default(figure, ti
     assert changed["parameters"]["protocol"]["name"] == other
     assert changed["parameters"]["protocol"]["choices"] == json.loads(json.dumps(preset(other).choices()))
     assert without_timings(changed) != without_timings(today)
-
-
-@pytest.fixture
-def figure_titles(monkeypatch) -> list[str]:
-    """The titles of the figures drawn (every figure is titled through ``Figure.suptitle``)."""
-    titles = []
-    suptitle = Figure.suptitle
-
-    def recording(self, title, *args, **kwargs):
-        titles.append(title)
-        return suptitle(self, title, *args, **kwargs)
-
-    monkeypatch.setattr(Figure, "suptitle", recording)
-    return titles
 
 
 @pytest.mark.parametrize("figure", ["fig2", "fig5", "fig7", "fig8"])
