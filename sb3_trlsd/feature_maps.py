@@ -23,6 +23,7 @@ more than ``MEMORY_BOUND_BYTES``.
 
 from __future__ import annotations
 
+import math
 from abc import ABC, abstractmethod
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -32,23 +33,36 @@ import numpy as np
 from sb3_trlsd.features import grid_axes, grid_centres
 
 __all__ = [
+    "ADAPTIVE_MAX_FEATURES",
+    "ADAPTIVE_OVERLAP",
     "FEATURE_MAPS",
     "FOURIER_FEATURES_PER_DIM",
     "MAX_GRID_FEATURES",
     "MEMORY_BOUND_BYTES",
+    "PAPER_OVERLAP",
+    "AdditiveRBF",
     "FeatureMap",
     "RBFGrid",
     "RandomFourierFeatures",
     "check_feature_memory",
     "default_kernel_width",
+    "grid_counts",
     "make_feature_map",
+    "spacing_widths",
 ]
 
-FEATURE_MAPS = ("auto", "rbf", "fourier")
+FEATURE_MAPS = ("auto", "paper", "rbf", "fourier", "additive", "adaptive")
+GRID_SHAPES = ("cube", "box")
 MAX_GRID_FEATURES = 125  # "auto" keeps the RBF grid up to 5 ** 3 centres
 FOURIER_FEATURES_PER_DIM = 50
 MEMORY_BOUND_BYTES = 2**30  # the Gram matrices (and their inverses) of a feature map, at most 1 GiB
+PAPER_OVERLAP = 0.2  # the paper's RBF width on the maze, 0.2 maze units, is a fifth of its grid's spacing
+ADAPTIVE_OVERLAP = (
+    0.7  # "adaptive": widths of 0.7 spacing, where neighbouring RBFs cross at 0.6 of their peak
+)
+ADAPTIVE_MAX_FEATURES = 150  # "adaptive": the grid while it has at least 3 centres a dimension within this
 Widths = float | Sequence[float] | np.ndarray
+Counts = int | Sequence[int]
 
 
 def _box(low: Sequence[float], high: Sequence[float]) -> tuple[tuple[float, ...], tuple[float, ...]]:
@@ -63,6 +77,22 @@ def _box(low: Sequence[float], high: Sequence[float]) -> tuple[tuple[float, ...]
     return low_t, high_t
 
 
+def _is_count(value: object) -> bool:
+    return isinstance(value, (int, np.integer)) and not isinstance(value, bool) and value >= 1
+
+
+def _counts(name: str, n_per_dim: Counts, dims: int) -> tuple[int, ...]:
+    """Counts as one integer >= 1 per dimension (a single integer for all)."""
+    if _is_count(n_per_dim):
+        return (int(n_per_dim),) * dims  # type: ignore[arg-type]
+    counts = tuple(n_per_dim) if isinstance(n_per_dim, (Sequence, np.ndarray)) else ()
+    if len(counts) != dims or not all(_is_count(n) for n in counts):
+        raise ValueError(
+            f"{name} must be an integer >= 1 or {dims} of them (one per state dimension), got {n_per_dim!r}"
+        )
+    return tuple(int(n) for n in counts)
+
+
 def _widths(name: str, sigma: Widths, dims: int) -> tuple[float, ...]:
     """Widths as one positive finite number per dimension (a single number for all)."""
     widths = (
@@ -75,6 +105,78 @@ def _widths(name: str, sigma: Widths, dims: int) -> tuple[float, ...]:
             f"{name} must be a number > 0 or {dims} of them (one per state dimension), got {sigma!r}"
         )
     return tuple(float(w) for w in widths)
+
+
+def grid_counts(
+    low: Sequence[float],
+    high: Sequence[float],
+    budget: int,
+    *,
+    shape: str = "cube",
+    minimum: int = 2,
+    additive: bool = False,
+) -> tuple[int, ...]:
+    """
+    Centres per dimension of a grid over the box [low, high] with at most ``budget`` centres, spaced as
+    evenly as the shape allows: starting from ``minimum`` in every dimension, the dimension of the coarsest
+    spacing gets one more centre while the grid stays within the budget.
+
+    What "evenly" means depends on whether the dimensions share a unit. ``"cube"`` spaces the centres evenly
+    in the unit cube the box maps to (counts that differ by at most one): the only choice that does not
+    depend on the units of the state, e.g. a position in metres next to a velocity in m/s, and the one that
+    gives a copy of an env whose states are rescaled dimension by dimension the same features. ``"box"``
+    spaces them evenly in the env's own units, the counts proportional to the sides of the box: on a 20 m x
+    5 m floor, four times as many centres along its length, cells close to square in metres. It is only
+    meaningful when every dimension has the same unit, which the box alone cannot tell, so the caller asks
+    for it.
+
+    :param low: lower corner of the box, (d,)
+    :param high: upper corner of the box, (d,)
+    :param budget: the most centres of the grid (their product; their sum with ``additive``)
+    :param shape: ``"cube"`` (the same count in every dimension, within one) or ``"box"`` (counts
+        proportional to the sides of the box in its units)
+    :param minimum: the fewest centres in any dimension (>= 1)
+    :param additive: count for ``AdditiveRBF`` (the budget bounds the sum of the counts)
+    :return: the counts, (d,)
+    """
+    low_t, high_t = _box(low, high)
+    if shape not in GRID_SHAPES:
+        raise ValueError(f"shape (rbf_per_dim) must be one of {list(GRID_SHAPES)}, got {shape!r}")
+    if not _is_count(minimum):
+        raise ValueError(f"minimum must be an integer >= 1, got {minimum!r}")
+    dims = len(low_t)
+    size = sum if additive else math.prod
+    if not (_is_count(budget) and size([minimum] * dims) <= budget):
+        raise ValueError(
+            f"the budget of features (max_features) must be an integer >= {size([minimum] * dims)} "
+            f"({minimum} centres in each of {dims} dimensions), got {budget!r}"
+        )
+    sides = np.subtract(high_t, low_t) if shape == "box" else np.ones(dims)
+    counts = [minimum] * dims
+    while True:
+        coarsest = int(np.argmax(sides / np.array(counts)))  # the first of equal spacings
+        counts[coarsest] += 1
+        if size(counts) > budget:
+            counts[coarsest] -= 1
+            return tuple(counts)
+
+
+def spacing_widths(counts: Sequence[int], overlap: float) -> tuple[float, ...]:
+    """
+    Widths tied to the spacing of the centres: ``overlap`` times the spacing 1 / n_i of dimension i, as
+    fractions of the box. With overlap 0.2 they are the paper's (0.04 of the box for 5 centres); from about
+    0.5 on, neighbouring RBFs overlap (they cross at exp(-1 / (8 overlap^2)) of their peak: 0.6 at 0.7), so
+    the features do not vanish between the centres.
+
+    :param counts: centres per dimension, (d,)
+    :param overlap: the width in units of the spacing (> 0)
+    :return: the widths, (d,)
+    """
+    if not (isinstance(overlap, (int, float, np.number)) and np.isfinite(overlap) and overlap > 0):
+        raise ValueError(
+            f"rbf_overlap (the width in units of the spacing) must be a number > 0, got {overlap!r}"
+        )
+    return tuple(float(overlap) / int(n) for n in counts)
 
 
 def default_kernel_width(dims: int) -> float:
@@ -117,31 +219,37 @@ class RBFGrid(FeatureMap):
 
     :param low: lower corner of the box, (d,)
     :param high: upper corner of the box, (d,)
-    :param n_per_dim: centres per dimension
+    :param n_per_dim: centres per dimension, one number for all or one per dimension (e.g. ``(20, 5)`` on
+        a 20 m x 5 m floor); the grid has their product
     :param sigma: width of each RBF as a fraction of the box, one number or one per dimension (> 0)
     """
 
     low: tuple[float, ...]
     high: tuple[float, ...]
-    n_per_dim: int = 5
+    n_per_dim: Counts = 5
     sigma: Widths = 0.04
     centres: np.ndarray = field(init=False, repr=False, compare=False)
     widths: tuple[float, ...] = field(init=False, repr=False, compare=False)  # in state units, (d,)
     axes: tuple[np.ndarray, ...] = field(init=False, repr=False, compare=False)  # centres per dimension
 
     def __post_init__(self) -> None:
-        if not (isinstance(self.n_per_dim, (int, np.integer)) and self.n_per_dim >= 1):
-            raise ValueError(f"n_per_dim (rbf_per_dim) must be an integer >= 1, got {self.n_per_dim!r}")
         low, high = _box(self.low, self.high)
+        counts = _counts("n_per_dim (rbf_per_dim)", self.n_per_dim, len(low))
         sigma = _widths("sigma (rbf_sigma, the width of the RBFs)", self.sigma, len(low))
         object.__setattr__(self, "low", low)
         object.__setattr__(self, "high", high)
+        object.__setattr__(self, "n_per_dim", counts[0] if len(set(counts)) == 1 else counts)
         object.__setattr__(self, "sigma", sigma[0] if len(set(sigma)) == 1 else sigma)
         object.__setattr__(
             self, "widths", tuple(s * (h - lo) for s, lo, h in zip(sigma, low, high, strict=True))
         )
-        object.__setattr__(self, "centres", grid_centres(np.array(low), np.array(high), self.n_per_dim))
-        object.__setattr__(self, "axes", tuple(grid_axes(np.array(low), np.array(high), self.n_per_dim)))
+        object.__setattr__(self, "centres", grid_centres(np.array(low), np.array(high), counts))
+        object.__setattr__(self, "axes", tuple(grid_axes(np.array(low), np.array(high), counts)))
+
+    @property
+    def counts(self) -> tuple[int, ...]:
+        """The number of centres along each dimension, (d,)."""
+        return tuple(len(axis) for axis in self.axes)
 
     @property
     def n_features(self) -> int:
@@ -160,11 +268,72 @@ class RBFGrid(FeatureMap):
         states = np.asarray(states, dtype=np.float64).reshape(-1, len(self.low))
         phi = np.ones((len(states), 1))
         for dim, (centres, width) in enumerate(zip(self.axes, self.widths, strict=True)):
-            with np.errstate(over="ignore"):  # (n, n_per_dim)
+            with np.errstate(over="ignore"):  # (n, n_per_dim[dim])
                 factor = np.exp(-((states[:, dim : dim + 1] - centres) ** 2) / (2.0 * width**2))
             # Outer product, the first dimension varying slowest as in grid_centres (eq. 11 factorised).
-            phi = (phi[:, :, None] * factor[:, None, :]).reshape(len(states), phi.shape[1] * self.n_per_dim)
+            phi = (phi[:, :, None] * factor[:, None, :]).reshape(len(states), phi.shape[1] * len(centres))
         return phi
+
+
+@dataclass(frozen=True)
+class AdditiveRBF(FeatureMap):
+    """
+    Gaussian RBF features of each state dimension on its own, side by side: dimension i has ``n_per_dim[i]``
+    Gaussians of s_i at the cell centres of a regular grid along it, so there are sum_i n_per_dim[i]
+    features, linear in the dimension d where the grid's product is exponential. A linear function of them
+    is a sum of one function per dimension (a generalised additive model): it follows how Q changes along
+    each dimension, not how the dimensions interact.
+
+    :param low: lower corner of the box, (d,)
+    :param high: upper corner of the box, (d,)
+    :param n_per_dim: Gaussians per dimension, one number for all or one per dimension
+    :param sigma: width of each Gaussian as a fraction of the box, one number or one per dimension (> 0)
+    """
+
+    low: tuple[float, ...]
+    high: tuple[float, ...]
+    n_per_dim: Counts = 10
+    sigma: Widths = 0.07
+    widths: tuple[float, ...] = field(init=False, repr=False, compare=False)  # in state units, (d,)
+    axes: tuple[np.ndarray, ...] = field(init=False, repr=False, compare=False)  # centres per dimension
+
+    def __post_init__(self) -> None:
+        low, high = _box(self.low, self.high)
+        counts = _counts("n_per_dim (rbf_per_dim)", self.n_per_dim, len(low))
+        sigma = _widths("sigma (rbf_sigma, the width of the RBFs)", self.sigma, len(low))
+        object.__setattr__(self, "low", low)
+        object.__setattr__(self, "high", high)
+        object.__setattr__(self, "n_per_dim", counts[0] if len(set(counts)) == 1 else counts)
+        object.__setattr__(self, "sigma", sigma[0] if len(set(sigma)) == 1 else sigma)
+        object.__setattr__(
+            self, "widths", tuple(s * (h - lo) for s, lo, h in zip(sigma, low, high, strict=True))
+        )
+        object.__setattr__(self, "axes", tuple(grid_axes(np.array(low), np.array(high), counts)))
+
+    @property
+    def counts(self) -> tuple[int, ...]:
+        """The number of Gaussians of each dimension, (d,)."""
+        return tuple(len(axis) for axis in self.axes)
+
+    @property
+    def n_features(self) -> int:
+        """k = sum_i n_per_dim[i]."""
+        return sum(self.counts)
+
+    def __call__(self, states: np.ndarray) -> np.ndarray:
+        """
+        Phi(s) = [exp(-(s_i - c_i,j)^2 / (2 w_i^2))]_(i, j), dimension by dimension (the first dimension's
+        first), with w_i the width in state units.
+
+        :param states: states (n, d)
+        :return: (n, n_features)
+        """
+        states = np.asarray(states, dtype=np.float64).reshape(-1, len(self.low))
+        blocks = []
+        for dim, (centres, width) in enumerate(zip(self.axes, self.widths, strict=True)):
+            with np.errstate(over="ignore"):
+                blocks.append(np.exp(-((states[:, dim : dim + 1] - centres) ** 2) / (2.0 * width**2)))
+        return np.concatenate(blocks, axis=1)
 
 
 @dataclass(frozen=True)
@@ -236,8 +405,10 @@ def make_feature_map(
     low: Sequence[float],
     high: Sequence[float],
     *,
-    rbf_per_dim: int = 5,
+    rbf_per_dim: Counts | str | None = None,
     rbf_sigma: Widths | None = None,
+    rbf_overlap: float | None = None,
+    max_features: int | None = None,
     fourier_features: int | None = None,
     seed: int = 0,
     n_actions: int = 1,
@@ -247,13 +418,26 @@ def make_feature_map(
     A feature map over the box [low, high] by name, with defaults that do not depend on the box's units,
     refused before it is built if its Gram matrices would not fit (``check_feature_memory``).
 
-    :param kind: ``"rbf"``, ``"fourier"`` or ``"auto"`` (the grid up to ``MAX_GRID_FEATURES`` centres)
+    :param kind: ``"rbf"`` (an ``RBFGrid``), ``"fourier"`` (``RandomFourierFeatures``), ``"additive"``
+        (``AdditiveRBF``), ``"auto"`` and ``"paper"`` (the grid while it has at most ``max_features``
+        centres, else Fourier features) or ``"adaptive"`` (a grid of ``ADAPTIVE_OVERLAP`` widths, counts from
+        the box under ``max_features``, while every dimension gets at least 3 centres; else ``AdditiveRBF``)
     :param low: lower corner of the state box, (d,)
     :param high: upper corner, (d,)
-    :param rbf_per_dim: centres per dimension of the grid
-    :param rbf_sigma: width as a fraction of the box; None: 0.2 / rbf_per_dim for the grid (the paper's on
-        the maze: a fifth of the spacing), ``default_kernel_width(d)`` for Fourier features
-    :param fourier_features: m of the Fourier features; None: ``FOURIER_FEATURES_PER_DIM`` * d
+    :param rbf_per_dim: centres per dimension of the grid (or Gaussians per dimension of ``"additive"``):
+        one integer, one per dimension, or ``"cube"`` / ``"box"`` for counts from ``grid_counts`` under
+        ``max_features`` (the same in every dimension / proportional to the box's sides in its units).
+        None: 5 for ``"rbf"``, ``"auto"`` and ``"paper"``, ``"cube"`` for ``"additive"`` and ``"adaptive"``
+    :param rbf_sigma: width as a fraction of the box, one or one per dimension; None: ``rbf_overlap`` times
+        the spacing of the centres for the RBF maps, ``default_kernel_width(d)`` for Fourier features
+    :param rbf_overlap: width of the RBFs in units of the spacing of their centres (``spacing_widths``),
+        when ``rbf_sigma`` is None; None: ``PAPER_OVERLAP`` (0.2, the paper's) for ``"rbf"``, ``"auto"`` and
+        ``"paper"``, ``ADAPTIVE_OVERLAP`` for ``"additive"`` and ``"adaptive"``
+    :param max_features: the budget of features of counts from ``grid_counts`` and of the choice of
+        ``"auto"``, ``"paper"`` and ``"adaptive"``, and the cap of the default number of Fourier features;
+        None: ``MAX_GRID_FEATURES`` (125), ``ADAPTIVE_MAX_FEATURES`` for ``"additive"`` and ``"adaptive"``
+    :param fourier_features: m of the Fourier features; None: ``FOURIER_FEATURES_PER_DIM`` * d (at most
+        ``max_features`` when it is given)
     :param seed: seed of the Fourier features
     :param n_actions: actions of the env (one Gram matrix each)
     :param n_tasks: tasks of the env (one ridge head each)
@@ -261,25 +445,74 @@ def make_feature_map(
     """
     if kind not in FEATURE_MAPS:
         raise ValueError(f"feature_map must be one of {list(FEATURE_MAPS)} or a FeatureMap, got {kind!r}")
-    if not (isinstance(rbf_per_dim, (int, np.integer)) and rbf_per_dim >= 1):
-        raise ValueError(f"rbf_per_dim must be an integer >= 1, got {rbf_per_dim!r}")
-    dims = len(np.atleast_1d(low))
-    if kind == "auto":
-        kind = "rbf" if rbf_per_dim**dims <= MAX_GRID_FEATURES else "fourier"
-    if kind == "rbf":
-        check_feature_memory(
-            rbf_per_dim**dims,
-            n_actions,
-            n_tasks,
-            f"feature_map='rbf' with rbf_per_dim={rbf_per_dim} on a {dims}-D state",
+    low_t, high_t = _box(low, high)
+    dims = len(low_t)
+    new_defaults = kind in ("additive", "adaptive")
+    if max_features is not None and not _is_count(max_features):
+        raise ValueError(f"max_features must be an integer >= 1 or None, got {max_features!r}")
+    budget = max_features or (ADAPTIVE_MAX_FEATURES if new_defaults else MAX_GRID_FEATURES)
+    if rbf_overlap is not None:
+        if rbf_sigma is not None:
+            raise ValueError(
+                "give rbf_sigma (a fraction of the box) or rbf_overlap (of the spacing), not both"
+            )
+        if kind == "fourier":
+            raise ValueError(
+                "rbf_overlap is the width of RBFs in their spacing; Fourier features take rbf_sigma"
+            )
+        spacing_widths((1,), rbf_overlap)  # checks it
+    if rbf_per_dim is None:
+        rbf_per_dim = "cube" if new_defaults else 5
+    shape = rbf_per_dim if isinstance(rbf_per_dim, str) else None
+    if shape is not None and shape not in GRID_SHAPES:
+        raise ValueError(
+            f"rbf_per_dim must be an integer >= 1, one per dimension or one of {list(GRID_SHAPES)}, "
+            f"got {shape!r}"
         )
-        return RBFGrid(
-            tuple(low), tuple(high), rbf_per_dim, 0.2 / rbf_per_dim if rbf_sigma is None else rbf_sigma
+    counts = None if shape else _counts("rbf_per_dim", rbf_per_dim, dims)  # type: ignore[arg-type]
+    fewest = 3 if kind == "adaptive" else 2  # centres per dimension of a grid of counts from the budget
+    if kind in ("auto", "paper", "adaptive"):
+        fits = fewest**dims <= budget if counts is None else math.prod(counts) <= budget
+        kind = "rbf" if fits else "additive" if kind == "adaptive" else "fourier"
+    if kind == "fourier":
+        return _fourier_features(
+            low_t, high_t, rbf_sigma, fourier_features, max_features, seed, n_actions, n_tasks
         )
-    m = FOURIER_FEATURES_PER_DIM * dims if fourier_features is None else fourier_features
+    if counts is None:
+        additive = kind == "additive"
+        counts = grid_counts(
+            low_t, high_t, budget, shape=shape, minimum=2 if additive else fewest, additive=additive
+        )
+    n_features = math.prod(counts) if kind == "rbf" else sum(counts)
+    check_feature_memory(
+        n_features,
+        n_actions,
+        n_tasks,
+        f"feature_map={kind!r} with rbf_per_dim={rbf_per_dim!r} on a {dims}-D state",
+    )
+    if rbf_sigma is None:
+        overlap = rbf_overlap or (ADAPTIVE_OVERLAP if new_defaults else PAPER_OVERLAP)
+        rbf_sigma = spacing_widths(counts, overlap)
+    n_per_dim = counts[0] if len(set(counts)) == 1 else counts
+    return (RBFGrid if kind == "rbf" else AdditiveRBF)(low_t, high_t, n_per_dim, rbf_sigma)
+
+
+def _fourier_features(
+    low: tuple[float, ...],
+    high: tuple[float, ...],
+    sigma: Widths | None,
+    m: int | None,
+    max_features: int | None,
+    seed: int,
+    n_actions: int,
+    n_tasks: int,
+) -> RandomFourierFeatures:
+    """``make_feature_map``'s Fourier features: m = 50 d (at most ``max_features``) of the default width."""
+    dims = len(low)
+    if m is None:
+        m = FOURIER_FEATURES_PER_DIM * dims
+        m = m if max_features is None else min(m, max_features)
     if not (isinstance(m, (int, np.integer)) and m >= 1):
         raise ValueError(f"fourier_features must be an integer >= 1, got {m!r}")
     check_feature_memory(m, n_actions, n_tasks, f"feature_map='fourier' with fourier_features={m}")
-    return RandomFourierFeatures(
-        tuple(low), tuple(high), m, default_kernel_width(dims) if rbf_sigma is None else rbf_sigma, seed
-    )
+    return RandomFourierFeatures(low, high, m, default_kernel_width(dims) if sigma is None else sigma, seed)

@@ -28,6 +28,15 @@ def test_grid_centres_in_three_dimensions_vary_the_first_coordinate_slowest():
     np.testing.assert_allclose(centres, expected)
 
 
+def test_grid_centres_take_one_count_per_dimension():
+    """3 x 2 cells over [0, 3] x [0, 1]: x-major rows (0.5|1.5|2.5) x (0.25|0.75); a count per dimension."""
+    centres = grid_centres(np.zeros(2), np.array([3.0, 1.0]), (3, 2))
+    np.testing.assert_allclose(centres, [[x, y] for x in (0.5, 1.5, 2.5) for y in (0.25, 0.75)])
+    np.testing.assert_array_equal(
+        grid_centres(np.zeros(2), np.ones(2), (4, 4)), grid_centres(np.zeros(2), np.ones(2), 4)
+    )
+
+
 def test_rbf_grid_equals_eq_11_and_is_one_at_its_centres():
     """The separable grid evaluation equals exp(-||s - s_ij||^2 / 2 sigma^2) for every centre."""
     states = np.random.default_rng(0).uniform(0, 5, size=(200, 2))
