@@ -1,17 +1,29 @@
 """What TRLSD reads from an observation: a state vector, and the task it belongs to.
 
 An env with one task observes its state as a Box; a multi-task env as a ``{"state": Box, "task":
-Discrete}`` Dict. Everything that unpacks an observation goes through ``split_observation``.
+Discrete}`` Dict, its tasks numbered from 0. Everything that unpacks an observation goes through
+``split_observation``, which refuses states that are not finite; ``StateBoxMonitor`` warns, once, of
+states found outside the box TRLSD's features and similarities are taken relative to.
 """
 
 from __future__ import annotations
 
+import warnings
 from typing import Any
 
 import numpy as np
 from gymnasium import spaces
 
-__all__ = ["split_observation", "state_space_of", "task_count_of"]
+__all__ = [
+    "StateBoxMonitor",
+    "StateOutsideBoxWarning",
+    "check_action_space",
+    "outside_box_message",
+    "split_observation",
+    "state_space_of",
+    "states_outside",
+    "task_count_of",
+]
 
 
 def state_space_of(observation_space: spaces.Space) -> spaces.Box:
@@ -19,7 +31,7 @@ def state_space_of(observation_space: spaces.Space) -> spaces.Box:
     The Box holding the state: the observation space itself, or its ``"state"`` entry for the
     ``{"state", "task"}`` Dict observations of multi-task envs.
 
-    :raises ValueError: for any other observation space
+    :raises ValueError: for any other observation space, or a ``"task"`` Discrete not starting at 0
     """
     if isinstance(observation_space, spaces.Dict) and isinstance(
         observation_space.spaces.get("state"), spaces.Box
@@ -30,6 +42,14 @@ def state_space_of(observation_space: spaces.Space) -> spaces.Box:
             raise ValueError(
                 "observation_space must be a Box or a Dict with exactly a 'state' Box and a 'task' Discrete, "
                 f"got {observation_space}"
+            )
+        if task_space.start != 0:
+            # Tasks index the reward heads, Q-functions and source data: one numbering, from 0, everywhere.
+            raise ValueError(
+                f"the 'task' Discrete must number its tasks from 0, got {task_space}: "
+                f"wrap the env so that its tasks are 0..{task_space.n - 1} (gymnasium.wrappers."
+                f"TransformObservation subtracting {task_space.start} from the task, with a 'task' "
+                f"Discrete({task_space.n}))"
             )
     elif isinstance(observation_space, spaces.Box):
         state_space = observation_space
@@ -52,13 +72,38 @@ def task_count_of(observation_space: spaces.Space) -> int:
     return 1
 
 
-def split_observation(obs: Any, state_dim: int) -> tuple[np.ndarray, np.ndarray]:
+def check_action_space(action_space: spaces.Space) -> int:
+    """
+    The number of actions of a Discrete action space whose actions are 0..n-1, the indices TRLSD's
+    Q-functions return (a ``Discrete(n, start=k)`` would be sent actions outside it).
+
+    :param action_space: the env's action space
+    :return: n
+    :raises ValueError: for a space that is not Discrete, or one not starting at 0
+    """
+    if not isinstance(action_space, spaces.Discrete):
+        raise ValueError(f"action_space must be Discrete, got {action_space}")
+    if action_space.start != 0:
+        raise ValueError(
+            f"action_space must number its actions from 0, got {action_space}: "
+            f"wrap the env so that its actions are 0..{action_space.n - 1} (gymnasium.wrappers."
+            f"TransformAction(env, lambda action: action + {action_space.start}, Discrete({action_space.n})))"
+        )
+    return int(action_space.n)
+
+
+def split_observation(
+    obs: Any, state_dim: int, task_count: int | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """
     The states and tasks of an observation, single or batched, as numpy arrays (torch tensors accepted).
 
     :param obs: a Box observation (d,) or (n, d), or a ``{"state", "task"}`` Dict of them
     :param state_dim: d
+    :param task_count: the number of tasks, to check the tasks against (None: not checked)
     :return: states (n, d) float64 and tasks (n,) int64 (all 0 for a Box observation)
+    :raises ValueError: for states that are not finite, tasks that are not integers (in 0..task_count-1),
+        or a count of tasks that does not match the states'
     """
     if isinstance(obs, dict):
         states = _as_array(obs["state"]).reshape(-1, state_dim)
@@ -72,7 +117,105 @@ def split_observation(obs: Any, state_dim: int) -> tuple[np.ndarray, np.ndarray]
         raise ValueError(f"an observation has {len(states)} states but {len(tasks)} tasks")
     if np.any(tasks != np.round(tasks)):
         raise ValueError(f"tasks must be integers, got {tasks}")
-    return states.astype(np.float64), tasks.astype(np.int64)
+    if task_count is not None and np.any((tasks < 0) | (tasks >= task_count)):
+        raise ValueError(f"tasks must be in 0..{task_count - 1}, got {np.unique(tasks)}")
+    states = states.astype(np.float64)
+    finite = np.isfinite(states)
+    if not finite.all():
+        dimensions = np.flatnonzero(~finite.all(axis=0))
+        raise ValueError(
+            f"states must be finite, got {states[~finite][0]} in dimension(s) {dimensions.tolist()} of "
+            f"{np.count_nonzero(~finite.all(axis=1))} of {len(states)} state(s): check the env's observations"
+        )
+    return states, tasks.astype(np.int64)
+
+
+class StateOutsideBoxWarning(UserWarning):
+    """
+    A state was found outside the box TRLSD's features and similarities are taken relative to (the state
+    Box's bounds, or ``state_bounds``). Filter it with ``warnings.filterwarnings("ignore",
+    category=StateOutsideBoxWarning)``.
+    """
+
+
+def states_outside(states: np.ndarray, low: np.ndarray, high: np.ndarray) -> dict[int, float]:
+    """
+    The dimensions in which some state lies outside the box [low, high], each with its value furthest
+    outside. A state within float32 rounding of a bound counts as inside (observations are often float32).
+
+    :param states: (n, d)
+    :param low: (d,) lower bounds of the box
+    :param high: (d,) upper bounds of the box
+    :return: ``{dimension: value}``, empty when every state is in the box
+    """
+    states = np.asarray(states, dtype=np.float64).reshape(-1, len(low))
+    low, high = np.asarray(low, dtype=np.float64), np.asarray(high, dtype=np.float64)
+    if not len(states):
+        return {}
+    rounding = 4 * np.finfo(np.float32).eps
+    lowest, highest = states.min(axis=0), states.max(axis=0)
+    below = low * (1 + np.where(low > 0, -rounding, rounding)) - lowest  # > 0: that far below the box
+    above = highest - high * (1 + np.where(high > 0, rounding, -rounding))
+    return {
+        int(dimension): float(
+            lowest[dimension] if below[dimension] >= above[dimension] else highest[dimension]
+        )
+        for dimension in np.flatnonzero((below > 0) | (above > 0))
+    }
+
+
+def outside_box_message(outside: dict[int, float], low: np.ndarray, high: np.ndarray) -> str:
+    """
+    The warning for states found outside the box: each dimension, its value and its bounds, and what to do.
+
+    :param outside: ``states_outside``'s result (not empty)
+    :param low: (d,) lower bounds of the box
+    :param high: (d,) upper bounds of the box
+    """
+    found = ", ".join(
+        f"dimension {dimension}: {value:.6g} (box [{low[dimension]:.6g}, {high[dimension]:.6g}])"
+        for dimension, value in outside.items()
+    )
+    return (
+        f"states outside the state box were found ({found}). TRLSD's features and similarities are taken "
+        "relative to the box, the state Box's bounds or state_bounds: outside it they extrapolate. Give "
+        "state_bounds=(low, high) with the range the states really take, or wrap the env so that its states "
+        "stay in its Box (gymnasium.wrappers.TransformObservation with np.clip). Warned once."
+    )
+
+
+class StateBoxMonitor:
+    """
+    Warns (``StateOutsideBoxWarning``), the first time only, of states found outside the box [low, high].
+    One per model: the warning is not repeated however many states are checked, nor lost to the
+    ``warnings`` module's own registry (each message names other values).
+
+    :param low: (d,) lower bounds of the box
+    :param high: (d,) upper bounds of the box
+    """
+
+    def __init__(self, low: np.ndarray, high: np.ndarray) -> None:
+        self.low = np.asarray(low, dtype=np.float64)
+        self.high = np.asarray(high, dtype=np.float64)
+        self.warned = False
+
+    def check(self, states: np.ndarray, stacklevel: int = 1) -> None:
+        """
+        Warn if some of ``states`` lie outside the box, unless this monitor warned already.
+
+        :param states: (n, d)
+        :param stacklevel: where the warning points: 1 at the caller of ``check``, 2 at its caller, ...
+        """
+        if self.warned:
+            return
+        outside = states_outside(states, self.low, self.high)
+        if outside:
+            self.warned = True
+            warnings.warn(
+                outside_box_message(outside, self.low, self.high),
+                StateOutsideBoxWarning,
+                stacklevel=stacklevel + 1,
+            )
 
 
 def _as_array(value: Any) -> np.ndarray:

@@ -1,0 +1,157 @@
+"""
+What TRLSD reads from observations, and the bad input it refuses or warns about instead of acting on it:
+states that are not finite, states outside the box, Discrete spaces not numbered from 0.
+"""
+
+import warnings
+
+import numpy as np
+import pytest
+import torch as th
+from gymnasium import spaces
+
+from sb3_trlsd.observations import (
+    StateBoxMonitor,
+    StateOutsideBoxWarning,
+    check_action_space,
+    outside_box_message,
+    split_observation,
+    state_space_of,
+    states_outside,
+    task_count_of,
+)
+
+STATE_BOX = spaces.Box(np.array([-1, 0, 2], dtype=np.float32), np.array([1, 5, 3], dtype=np.float32))
+LOW, HIGH = STATE_BOX.low.astype(np.float64), STATE_BOX.high.astype(np.float64)
+
+
+def multitask_space(task_space: spaces.Space) -> spaces.Dict:
+    return spaces.Dict({"state": STATE_BOX, "task": task_space})
+
+
+@pytest.mark.parametrize(
+    ("obs", "states", "tasks"),
+    [
+        (np.array([0.5, 1.0, 2.5]), [[0.5, 1.0, 2.5]], [0]),
+        (th.tensor([[0.5, 1.0, 2.5], [0.0, 0.0, 2.0]]), [[0.5, 1.0, 2.5], [0.0, 0.0, 2.0]], [0, 0]),
+        ({"state": np.array([0.5, 1.0, 2.5]), "task": 2}, [[0.5, 1.0, 2.5]], [2]),
+        ({"state": np.zeros((2, 3)), "task": np.array([1.0])}, [[0, 0, 0], [0, 0, 0]], [1, 1]),
+    ],
+    ids=["box", "batched tensor", "dict", "one task for a batch"],
+)
+def test_split_observation_gives_states_and_tasks(obs, states, tasks):
+    got_states, got_tasks = split_observation(obs, 3)
+    np.testing.assert_array_equal(got_states, states)
+    np.testing.assert_array_equal(got_tasks, tasks)
+    assert (got_states.dtype, got_tasks.dtype) == (np.float64, np.int64)
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf], ids=["nan", "inf", "-inf"])
+@pytest.mark.parametrize("as_dict", [False, True], ids=["box", "dict"])
+def test_a_state_that_is_not_finite_is_refused_naming_its_dimension(bad, as_dict):
+    """A NaN state compared to nothing: the greedy action of all-NaN Q-values was action 0, silently."""
+    state = np.array([[0.5, 1.0, 2.5], [0.5, bad, 2.5]], dtype=np.float32)
+    obs = {"state": state, "task": np.array([0, 1])} if as_dict else state
+    with pytest.raises(
+        ValueError, match=rf"states must be finite, got {bad} in dimension\(s\) \[1\] of 1 of 2"
+    ):
+        split_observation(obs, 3)
+
+
+@pytest.mark.parametrize("task", [1.5, np.nan], ids=["fraction", "nan"])
+def test_a_task_that_is_not_an_integer_is_refused(task):
+    with pytest.raises(ValueError, match="tasks must be integers"):
+        split_observation({"state": np.zeros(3), "task": np.array(task)}, 3)
+
+
+@pytest.mark.parametrize("task", [-1, 3], ids=["negative", "past the last"])
+def test_a_task_out_of_range_is_refused_when_the_count_is_given(task):
+    """A task -1 would index the last task's reward head, silently."""
+    obs = {"state": np.zeros(3), "task": np.array(task)}
+    with pytest.raises(ValueError, match=rf"tasks must be in 0\.\.2, got \[{task}\]"):
+        split_observation(obs, 3, task_count=3)
+    split_observation(obs, 3)  # without the count: not checked
+
+
+def test_the_state_space_and_task_count_of_box_and_dict_observations():
+    assert state_space_of(STATE_BOX) is STATE_BOX and task_count_of(STATE_BOX) == 1
+    assert state_space_of(multitask_space(spaces.Discrete(4))) is STATE_BOX
+    assert task_count_of(multitask_space(spaces.Discrete(4))) == 4
+
+
+def test_a_task_space_not_starting_at_0_is_refused_with_the_wrapper_to_use():
+    """Tasks 2..4 would be read as indices 2..4 of 3 tasks: the wrong reward heads, or an IndexError later."""
+    space = multitask_space(spaces.Discrete(3, start=2))
+    for function in (state_space_of, task_count_of):
+        with pytest.raises(ValueError, match=r"number its tasks from 0, got Discrete\(3, start=2\).*0\.\.2"):
+            function(space)
+    with pytest.raises(ValueError, match="TransformObservation subtracting 2 from the task"):
+        state_space_of(space)
+
+
+def test_a_discrete_action_space_from_0_gives_its_number_of_actions():
+    assert check_action_space(spaces.Discrete(5)) == 5
+
+
+@pytest.mark.parametrize(
+    ("space", "message"),
+    [
+        (spaces.Discrete(4, start=1), r"number its actions from 0, got Discrete\(4, start=1\).*action \+ 1"),
+        (spaces.Box(-1, 1, (2,)), "action_space must be Discrete"),
+    ],
+    ids=["start 1", "box"],
+)
+def test_an_action_space_trlsd_cannot_act_in_is_refused(space, message):
+    """With start=1, the greedy index 0 would be sent to the env: an action outside its space."""
+    with pytest.raises(ValueError, match=message):
+        check_action_space(space)
+
+
+def test_states_outside_names_each_dimension_with_its_furthest_value():
+    states = np.array([[0.0, 6.0, 2.5], [-1.5, 7.0, 2.5], [-1.2, 1.0, 2.5]])
+    assert states_outside(states, LOW, HIGH) == {0: -1.5, 1: 7.0}
+    assert states_outside(np.array([[0.0, 1.0, 2.5]]), LOW, HIGH) == {}
+    assert states_outside(np.zeros((0, 3)), LOW, HIGH) == {}
+
+
+def test_states_on_the_bounds_or_within_float32_rounding_are_inside():
+    """float32 observations of a box given in float64 (state_bounds=(0.1, ...)) must not warn."""
+    low, high = np.array([0.1, -0.3]), np.array([0.7, 1e6])
+    states = np.array([low, high], dtype=np.float32)
+    assert states_outside(states, low, high) == {}
+    assert states_outside(np.array([[0.1, 1e6 + 1]]), low, high) == {1: 1e6 + 1}
+
+
+def test_states_outside_an_unbounded_side_are_inside():
+    assert states_outside(np.array([[-1e30, 2.0]]), np.array([-np.inf, 0.0]), np.array([0.0, 1.0])) == {
+        1: 2.0
+    }
+
+
+def test_the_warning_names_dimension_value_box_and_what_to_do():
+    message = outside_box_message({0: -1.5, 1: 7.0}, LOW, HIGH)
+    for fragment in [
+        "dimension 0: -1.5 (box [-1, 1])",
+        "dimension 1: 7 (box [0, 5])",
+        "features and similarities are taken relative to the box",
+        "state_bounds=(low, high)",
+        "np.clip",
+    ]:
+        assert fragment in message, message
+
+
+def test_the_monitor_warns_once_and_only_of_states_outside():
+    monitor = StateBoxMonitor(LOW, HIGH)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        monitor.check(np.array([[0.0, 1.0, 2.5]]))  # inside: no warning
+    with pytest.warns(StateOutsideBoxWarning, match=r"dimension 2: 3\.5 \(box \[2, 3\]\)") as caught:
+        monitor.check(np.array([[0.0, 1.0, 3.5]]))
+    assert caught[0].filename == __file__  # at the caller, not in the monitor
+    with pytest.warns(StateOutsideBoxWarning) as caught:
+        StateBoxMonitor(LOW, HIGH).check(np.array([[0.0, 1.0, 3.5]]), stacklevel=2)
+    assert caught[0].filename != __file__  # at the caller's caller (TRLSD's user, called from TRLSD)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        monitor.check(np.array([[9.0, 9.0, 9.0]]))  # warned already
+    assert issubclass(StateOutsideBoxWarning, UserWarning)  # filtered as users filter warnings
