@@ -93,7 +93,7 @@ def check_action_space(action_space: spaces.Space) -> int:
 
 
 def split_observation(
-    obs: Any, state_dim: int, task_count: int | None = None
+    obs: Any, state_dim: int, *, task_count: int | None = None, require_finite: bool = False
 ) -> tuple[np.ndarray, np.ndarray]:
     """
     The states and tasks of an observation, single or batched, as numpy arrays (torch tensors accepted).
@@ -101,9 +101,11 @@ def split_observation(
     :param obs: a Box observation (d,) or (n, d), or a ``{"state", "task"}`` Dict of them
     :param state_dim: d
     :param task_count: the number of tasks, to check the tasks against (None: not checked)
+    :param require_finite: refuse states with a NaN or an infinite value (to act on one, or learn from it,
+        would give an arbitrary action or Q-function). False for a caller that checks them itself.
     :return: states (n, d) float64 and tasks (n,) int64 (all 0 for a Box observation)
-    :raises ValueError: for states that are not finite, tasks that are not integers (in 0..task_count-1),
-        or a count of tasks that does not match the states'
+    :raises ValueError: for tasks that are not integers (or not in 0..task_count-1), a count of tasks that
+        does not match the states', or (with ``require_finite``) states that are not finite
     """
     if isinstance(obs, dict):
         states = _as_array(obs["state"]).reshape(-1, state_dim)
@@ -121,11 +123,12 @@ def split_observation(
         raise ValueError(f"tasks must be in 0..{task_count - 1}, got {np.unique(tasks)}")
     states = states.astype(np.float64)
     finite = np.isfinite(states)
-    if not finite.all():
+    if require_finite and not finite.all():
         dimensions = np.flatnonzero(~finite.all(axis=0))
         raise ValueError(
-            f"states must be finite, got {states[~finite][0]} in dimension(s) {dimensions.tolist()} of "
-            f"{np.count_nonzero(~finite.all(axis=1))} of {len(states)} state(s): check the env's observations"
+            f"states must be finite: {np.count_nonzero(~finite.all(axis=1))} of {len(states)} state(s) have "
+            f"{states[~finite][0]} in dimension(s) {dimensions.tolist()}; TRLSD can neither act on nor learn "
+            "from them: check the env's observations"
         )
     return states, tasks.astype(np.int64)
 
