@@ -5,11 +5,14 @@ states that are not finite, states outside the box, Discrete spaces not numbered
 
 import warnings
 
+import gymnasium as gym
 import numpy as np
 import pytest
 import torch as th
 from gymnasium import spaces
 
+import sb3_trlsd_envs  # noqa: F401  (registers the maze)
+from sb3_trlsd import TRLSD
 from sb3_trlsd.observations import (
     StateBoxMonitor,
     StateOutsideBoxWarning,
@@ -156,3 +159,12 @@ def test_the_monitor_warns_once_and_only_of_states_outside():
         warnings.simplefilter("error")
         monitor.check(np.array([[9.0, 9.0, 9.0]]))  # warned already
     assert issubclass(StateOutsideBoxWarning, UserWarning)  # filtered as users filter warnings
+
+
+def test_trlsd_refuses_an_env_whose_tasks_start_at_1_when_it_is_made():
+    """Tasks 1..25 read as indices of 25 heads: each task's data taught to the next head, the last's lost."""
+    env = gym.make("TRLSD/SharedDynamicsMaze-v0", task=(3, 3))
+    space = spaces.Dict({"state": env.observation_space["state"], "task": spaces.Discrete(25, start=1)})
+    shifted = gym.wrappers.TransformObservation(env, lambda obs: {**obs, "task": obs["task"] + 1}, space)
+    with pytest.raises(ValueError, match=r"tasks from 0, got Discrete\(25, start=1\).*subtracting 1"):
+        TRLSD("LinearPolicy", shifted)
