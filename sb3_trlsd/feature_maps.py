@@ -2,23 +2,29 @@
 
 Every map sees a state through its state box [low, high] mapped to the unit cube: its widths are fractions
 of the box, so a copy of an env whose states are scaled by 10 gets the same features as the original, and
-the defaults mean the same thing on any env. Per-dimension widths are allowed.
+the defaults mean the same thing on any env. Counts of centres and widths may differ by dimension.
 
 - ``RBFGrid``: Gaussian RBFs at the centres of a regular grid (the paper's eq. 11; on the maze, 5 x 5
-  centres of width 0.2, i.e. 0.04 of the box). Its size, n_per_dim ** d, grows exponentially with the
-  dimension d: the map for low dimension.
+  centres of width 0.2, i.e. 0.04 of the box). Its size, the product of its counts per dimension, grows
+  exponentially with the dimension d: the map for low dimension.
+- ``AdditiveRBF``: a row of Gaussians along each dimension, side by side; its size, their sum, grows
+  linearly with d. Q is then a sum of one function per dimension: enough to rank the actions where each
+  moves the state along its own dimensions towards a goal, blind to how the dimensions interact (a wall
+  across the diagonal of a grid-world, say), which the grid sees at low d.
 - ``RandomFourierFeatures``: sqrt(2 / m) cos(W u / sigma + b), W ~ N(0, I), b ~ U(0, 2 pi) (Rahimi & Recht,
   "Random features for large-scale kernel machines", NeurIPS 2007). Their inner products approximate the
   same Gaussian kernel exp(-||u - u'||^2 / 2 sigma^2) as the RBF grid's, with a size m chosen freely (by
-  default ``FOURIER_FEATURES_PER_DIM`` * d, linear in d). We pick them over tile coding because they keep
-  the paper's Gaussian kernel (the features of eq. 11 and the similarity of eq. 7) in any dimension, where
-  tile coding's tilings are themselves exponential in d unless hashed or split into stripes, and because a
-  linear FQI fit on them is a kernel (ridge) regression approximated with m features, the setting of
-  kernel-based FQI (Ormoneit & Sen 2002; Farahmand et al. 2009).
+  default ``FOURIER_FEATURES_PER_DIM`` * d, linear in d): a linear FQI fit on them is a kernel (ridge)
+  regression approximated with m features, the setting of kernel-based FQI (Ormoneit & Sen 2002;
+  Farahmand et al. 2009). With a few hundred features, they approximate the kernel too coarsely for a
+  greedy policy from 4 dimensions on (``benchmarks/bench_feature_maps.py``).
 
-``make_feature_map`` chooses by dimension (``"auto"``: the grid while it has at most ``MAX_GRID_FEATURES``
-features, else Fourier features) and refuses, before allocating, any map whose Gram matrices would take
-more than ``MEMORY_BOUND_BYTES``.
+``make_feature_map`` builds them by name: ``"auto"`` and ``"paper"`` (the grid while it has at most
+``MAX_GRID_FEATURES`` centres, each of a fifth of the spacing wide as on the maze, else Fourier features),
+``"adaptive"`` (the grid, widths of ``ADAPTIVE_OVERLAP`` spacings, while it has 3 centres a dimension
+within ``ADAPTIVE_MAX_FEATURES``; else ``AdditiveRBF``) or one map; ``grid_counts`` chooses counts per
+dimension under a budget, ``spacing_widths`` widths from the spacing. It refuses, before allocating, any
+map whose Gram matrices would take more than ``MEMORY_BOUND_BYTES``.
 """
 
 from __future__ import annotations
@@ -35,6 +41,7 @@ from sb3_trlsd.features import grid_axes, grid_centres
 __all__ = [
     "ADAPTIVE_MAX_FEATURES",
     "ADAPTIVE_OVERLAP",
+    "ADDITIVE_PER_DIM",
     "FEATURE_MAPS",
     "FOURIER_FEATURES_PER_DIM",
     "MAX_GRID_FEATURES",
@@ -57,10 +64,9 @@ MAX_GRID_FEATURES = 125  # "auto" keeps the RBF grid up to 5 ** 3 centres
 FOURIER_FEATURES_PER_DIM = 50
 MEMORY_BOUND_BYTES = 2**30  # the Gram matrices (and their inverses) of a feature map, at most 1 GiB
 PAPER_OVERLAP = 0.2  # the paper's RBF width on the maze, 0.2 maze units, is a fifth of its grid's spacing
-ADAPTIVE_OVERLAP = (
-    0.7  # "adaptive": widths of 0.7 spacing, where neighbouring RBFs cross at 0.6 of their peak
-)
+ADAPTIVE_OVERLAP = 1.5  # "adaptive" and "additive": widths of 1.5 spacings (benchmarks/bench_feature_maps.py)
 ADAPTIVE_MAX_FEATURES = 150  # "adaptive": the grid while it has at least 3 centres a dimension within this
+ADDITIVE_PER_DIM = 8  # "additive": Gaussians per dimension, while they fit the budget
 Widths = float | Sequence[float] | np.ndarray
 Counts = int | Sequence[int]
 
@@ -428,6 +434,7 @@ def make_feature_map(
         one integer, one per dimension, or ``"cube"`` / ``"box"`` for counts from ``grid_counts`` under
         ``max_features`` (the same in every dimension / proportional to the box's sides in its units).
         None: 5 for ``"rbf"``, ``"auto"`` and ``"paper"``, ``"cube"`` for ``"additive"`` and ``"adaptive"``
+        (``"additive"``: ``ADDITIVE_PER_DIM`` a dimension unless ``max_features`` is given)
     :param rbf_sigma: width as a fraction of the box, one or one per dimension; None: ``rbf_overlap`` times
         the spacing of the centres for the RBF maps, ``default_kernel_width(d)`` for Fourier features
     :param rbf_overlap: width of the RBFs in units of the spacing of their centres (``spacing_widths``),
@@ -435,7 +442,8 @@ def make_feature_map(
         ``"paper"``, ``ADAPTIVE_OVERLAP`` for ``"additive"`` and ``"adaptive"``
     :param max_features: the budget of features of counts from ``grid_counts`` and of the choice of
         ``"auto"``, ``"paper"`` and ``"adaptive"``, and the cap of the default number of Fourier features;
-        None: ``MAX_GRID_FEATURES`` (125), ``ADAPTIVE_MAX_FEATURES`` for ``"additive"`` and ``"adaptive"``
+        None: ``MAX_GRID_FEATURES`` (125), ``ADAPTIVE_MAX_FEATURES`` (150) for ``"additive"`` and
+        ``"adaptive"``
     :param fourier_features: m of the Fourier features; None: ``FOURIER_FEATURES_PER_DIM`` * d (at most
         ``max_features`` when it is given)
     :param seed: seed of the Fourier features
@@ -478,11 +486,12 @@ def make_feature_map(
         return _fourier_features(
             low_t, high_t, rbf_sigma, fourier_features, max_features, seed, n_actions, n_tasks
         )
-    if counts is None:
-        additive = kind == "additive"
-        counts = grid_counts(
-            low_t, high_t, budget, shape=shape, minimum=2 if additive else fewest, additive=additive
-        )
+    if counts is None and kind == "additive":
+        # ADDITIVE_PER_DIM a dimension, unless a budget is given: more are no better (the benchmark).
+        per_dim_budget = budget if max_features else min(budget, ADDITIVE_PER_DIM * dims)
+        counts = grid_counts(low_t, high_t, per_dim_budget, shape=shape, additive=True)
+    elif counts is None:
+        counts = grid_counts(low_t, high_t, budget, shape=shape, minimum=fewest)
     n_features = math.prod(counts) if kind == "rbf" else sum(counts)
     check_feature_memory(
         n_features,
