@@ -8,6 +8,7 @@ import pytest
 
 from sb3_trlsd.feature_maps import (
     ADAPTIVE_MAX_FEATURES,
+    ADDITIVE_PER_DIM,
     MEMORY_BOUND_BYTES,
     PAPER_OVERLAP,
     AdditiveRBF,
@@ -256,6 +257,10 @@ def test_the_scalable_maps_stay_within_their_budget_as_the_dimension_grows(kind,
     )
     assert features.n_features <= ADAPTIVE_MAX_FEATURES
     assert min(features.counts) >= 2
+    if isinstance(features, AdditiveRBF):
+        assert features.counts == (ADDITIVE_PER_DIM,) * dims  # 8 a dimension: 112 features in 14-D
+    else:
+        assert kind == "adaptive" and dims <= 4 and min(features.counts) >= 3
     phi = features(unit_states(5, dims))
     assert phi.shape == (5, features.n_features) and np.all(np.isfinite(phi))
 
