@@ -64,7 +64,7 @@ class SharedDynamicsReplayBuffer(ReplayBuffer):
     :param observation_space: the env's observation space (Box, or Dict with ``state`` and ``task``)
     :param action_space: the env's (Discrete) action space
     :param device: PyTorch device for sampled batches
-    :param n_envs: number of parallel environments
+    :param n_envs: number of parallel environments, whose steps are stored as consecutive rows
     :param optimize_memory_usage: not supported (next states are kept apart), must be False
     :param handle_timeout_termination: keep truncations apart from terminations so that learners
         bootstrap through them
@@ -87,12 +87,16 @@ class SharedDynamicsReplayBuffer(ReplayBuffer):
             raise ValueError("SharedDynamicsReplayBuffer does not support optimize_memory_usage=True")
         if not isinstance(action_space, spaces.Discrete):
             raise ValueError(f"SharedDynamicsReplayBuffer needs a Discrete action space, got {action_space}")
+        if not (isinstance(n_envs, (int, np.integer)) and n_envs >= 1):
+            raise ValueError(f"n_envs must be an integer >= 1, got {n_envs!r}")
+        # One column of rows: a step of n_envs envs is n_envs consecutive rows, so that transitions loaded
+        # from elsewhere, and any number of envs, share one ring of buffer_size rows.
         super().__init__(
             buffer_size,
             state_space_of(observation_space),
             action_space,
             device=device,
-            n_envs=n_envs,
+            n_envs=1,
             optimize_memory_usage=False,
             handle_timeout_termination=handle_timeout_termination,
         )
@@ -122,18 +126,34 @@ class SharedDynamicsReplayBuffer(ReplayBuffer):
         done: np.ndarray,
         infos: list[dict[str, Any]],
     ) -> None:
-        """Store one step of the ``n_envs`` envs, as SB3's ``collect_rollouts`` calls it (validated first)."""
+        """
+        Store one step of the envs, as SB3's ``collect_rollouts`` calls it (validated first): one row per env,
+        in the envs' order.
+        """
         dim = self.obs_shape[0]
         states, tasks = split_observation(obs, dim)
         next_states, _ = split_observation(next_obs, dim)
         actions = np.asarray(action).reshape(-1)
         rewards = np.asarray(reward, dtype=np.float64).reshape(-1)
-        self._check_rows(states, next_states, actions, rewards, tasks, expected_rows=self.n_envs)
-        self._before_write(1)
-        self.tasks[self.pos] = tasks
-        self.has_reward[self.pos] = True
-        super().add(states, next_states, action, reward, done, infos)
-        self.n_added += self.n_envs
+        self._check_rows(states, next_states, actions, rewards, tasks, expected_rows=len(states))
+        dones = np.asarray(done).reshape(-1)
+        if len(dones) != len(states) or len(infos) != len(states):
+            raise ValueError(
+                f"expected one done and one info per env ({len(states)}), got {len(dones)}, {len(infos)}"
+            )
+        for i in range(len(states)):
+            self._before_write(1)
+            self.tasks[self.pos] = tasks[i]
+            self.has_reward[self.pos] = True
+            super().add(
+                states[i : i + 1],
+                next_states[i : i + 1],
+                actions[i : i + 1],
+                rewards[i : i + 1],
+                dones[i : i + 1],
+                infos[i : i + 1],
+            )
+            self.n_added += 1
 
     def add_transitions(self, transitions: Transitions, keep_rewards: bool = False) -> None:
         """
@@ -142,8 +162,6 @@ class SharedDynamicsReplayBuffer(ReplayBuffer):
         :param transitions: the transitions to append
         :param keep_rewards: keep their rewards (``has_reward``); False (the paper's setting) stores 0
         """
-        if self.n_envs != 1:
-            raise ValueError("add_transitions needs a buffer with n_envs=1")
         self._check_rows(
             transitions.states,
             transitions.next_states,
@@ -220,7 +238,7 @@ class SharedDynamicsReplayBuffer(ReplayBuffer):
 
     # ----------------------------------------------------------------- reading
     def _flat(self, array: np.ndarray) -> np.ndarray:
-        """The valid rows of a (buffer_size, n_envs, ...) array as (n, ...), oldest first."""
+        """The valid rows of a (buffer_size, 1, ...) array as (n, ...), oldest first."""
         array = np.concatenate([array[self.pos :], array[: self.pos]]) if self.full else array[: self.pos]
         return array.reshape(-1, *array.shape[2:])
 
@@ -254,7 +272,7 @@ class SharedDynamicsReplayBuffer(ReplayBuffer):
             before are gone: the buffer wrapped around, was reset, or is another buffer); then every row
             is returned
         """
-        n_stored = self.size() * self.n_envs
+        n_stored = self.size()
         restart = cursor.epoch != self.epoch or cursor.n_read > self.n_added
         first = 0 if restart else n_stored - (self.n_added - cursor.n_read)
         cursor.epoch, cursor.n_read = self.epoch, self.n_added
@@ -286,7 +304,7 @@ class SharedDynamicsReplayBuffer(ReplayBuffer):
 
         :return: (n, 2 d + 6)
         """
-        n = self.size() * self.n_envs
+        n = self.size()
         columns = [
             self._flat(getattr(self, name)).reshape(n, -1).astype(np.float64) for name in STORED_FIELDS
         ]
@@ -306,10 +324,8 @@ class SharedDynamicsReplayBuffer(ReplayBuffer):
                 f"packed rows must have shape (n, {2 * d + 6}) for states of dimension {d}, got {rows.shape}"
             )
         n = len(rows)
-        if n > self.buffer_size or self.n_envs != 1:
-            raise ValueError(
-                f"{n} rows do not fit a buffer of size {self.buffer_size} with n_envs={self.n_envs}"
-            )
+        if n > self.buffer_size:
+            raise ValueError(f"{n} rows do not fit a buffer of size {self.buffer_size}")
         columns = dict(
             zip(STORED_FIELDS, np.split(rows, np.cumsum([d, d, 1, 1, 1, 1, 1]), axis=1), strict=True)
         )

@@ -16,13 +16,13 @@ from typing import Any, NamedTuple
 
 import numpy as np
 from stable_baselines3.common.logger import HParam, Image, Logger, TensorBoardOutputFormat
+from stable_baselines3.common.vec_env import VecEnv
 
 __all__ = [
     "PICTURE_METHOD",
     "TaskView",
     "has_tensorboard",
     "log_hyperparameters",
-    "log_refit",
     "log_task_picture",
     "write_now",
 ]
@@ -59,55 +59,31 @@ def write_now(logger: Logger, key: str, value: Any, step: int) -> None:
             output.write({key: value}, {key: None}, step=step)
 
 
-def log_task_picture(model: Any, learner: Any, trail: int = 50) -> None:
+def log_task_picture(logger: Logger, env: VecEnv | None, view: TaskView, step: int) -> None:
     """
-    Write a picture of ``learner``'s task at its first refit, then every ``model.log_picture_every``
-    refits, when the model logs to TensorBoard and its env draws tasks (``task_picture``).
+    Write a picture of a task's learner, when the logger writes to TensorBoard and the env draws tasks
+    (``task_picture``).
 
-    :param model: a ``TRLSD`` model
-    :param learner: the task's ``TaskLearner``, just refitted
-    :param trail: states of the task's latest trajectory shown
+    :param logger: the model's logger
+    :param env: the model's env (None: no picture)
+    :param view: what the picture may show
+    :param step: the step it belongs to
     """
-    every = model.log_picture_every
-    if not every or (learner.refits != 1 and learner.refits % every) or not has_tensorboard(model.logger):
+    if env is None or not has_tensorboard(logger) or not env.has_attr(PICTURE_METHOD):
         return
-    if model.env is None or not model.env.has_attr(PICTURE_METHOD):
-        return
-    view = TaskView(
-        task=learner.task,
-        estimate=learner.head.estimate,
-        bonus=learner.head.bonus,
-        q_values=lambda states: model.policy.q_values(states, learner.task),
-        trajectory=model.replay_buffer.recent_states(learner.task, trail),
-    )
-    picture = model.env.get_attr(PICTURE_METHOD, indices=0)[0](view)
-    write_now(model.logger, f"pictures/task_{learner.task}", Image(picture, "HWC"), model.num_timesteps)
+    picture = env.get_attr(PICTURE_METHOD, indices=0)[0](view)
+    write_now(logger, f"pictures/task_{view.task}", Image(picture, "HWC"), step)
 
 
-def log_hyperparameters(model: Any) -> None:
-    """Write the model's HParams (``model.hyperparameters()``) to TensorBoard, now."""
+def log_hyperparameters(
+    logger: Logger, hyperparameters: dict[str, int | float | str | bool], step: int
+) -> None:
+    """
+    Write a run's HParams to TensorBoard, now.
+
+    :param logger: the model's logger
+    :param hyperparameters: the settings, as the HParams tab shows them
+    :param step: the step they belong to
+    """
     metrics = {"rollout/ep_rew_mean": 0.0, "train/policy_updates": 0.0}
-    write_now(model.logger, "hparams", HParam(model.hyperparameters(), metrics), model.num_timesteps)
-
-
-def log_refit(model: Any, learner: Any, result: Any, rewards: np.ndarray, trail: int = 50) -> None:
-    """
-    What a refit writes to the logger (nothing when the model has no logger yet, outside ``learn``):
-    ``train/policy_updates``, ``train/fqi_iterations``, ``train/bellman_residual``, ``reward/ci_mean`` (the
-    optimism applied, mean of R~ - R^ over the relabelled set), and the task's picture when one is due.
-
-    :param model: a ``TRLSD`` model
-    :param learner: the task's ``TaskLearner``, just refitted
-    :param result: the ``FQIResult`` of the refit
-    :param rewards: the relabelled rewards the Q-function was fitted on
-    :param trail: states of the task's latest trajectory shown in its picture
-    """
-    if getattr(model, "_logger", None) is None:
-        return
-    model.logger.record("train/policy_updates", sum(model.policy_updates.values()))
-    model.logger.record("train/fqi_iterations", result.iterations)
-    model.logger.record("train/bellman_residual", result.bellman_residual)
-    if len(rewards):
-        states = model.replay_buffer.transitions().states
-        model.logger.record("reward/ci_mean", float(np.mean(rewards - learner.head.estimate(states))))
-    log_task_picture(model, learner, trail)
+    write_now(logger, "hparams", HParam(hyperparameters, metrics), step)

@@ -43,7 +43,7 @@ class FitRows(ABC):
             self._clear()
         if len(rows):
             self._extend(rows)
-        assert self.n_transitions == buffer.size() * buffer.n_envs
+        assert self.n_transitions == buffer.size()
 
     def extend(self, rows: Transitions) -> None:
         """

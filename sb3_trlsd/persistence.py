@@ -1,8 +1,7 @@
-"""Nothing lost on save and load: the pieces ``TRLSDInterface`` (``sb3_interface.py``) adds to SB3's.
+"""Nothing lost on save and load: the pieces ``TRLSD`` adds to SB3's.
 
-The shared buffer's rows travel in the zip as the "pytorch variable" ``BUFFER_ROWS``; ``restore_after_load``
-puts them back in the new, empty buffer and binds the known heads to their reward function again (it is not
-saved: it is often an env's method); ``read_replay_buffer`` checks a buffer from ``save_replay_buffer``
+The shared buffer's rows travel in the zip as the "pytorch variable" ``BUFFER_ROWS`` (``TRLSD.load`` puts
+them back in the new, empty buffer); ``read_replay_buffer`` checks a buffer from ``save_replay_buffer``
 before it replaces the model's.
 """
 
@@ -11,16 +10,13 @@ from __future__ import annotations
 import io
 import pathlib
 import pickle
-from typing import Any
 
 import torch as th
 from stable_baselines3.common.save_util import load_from_pkl
 
 from sb3_trlsd.buffers import SharedDynamicsReplayBuffer
-from sb3_trlsd.builders import known_reward_fn
-from sb3_trlsd.reward_heads import KnownRewardHead
 
-__all__ = ["BUFFER_ROWS", "empty_rows", "read_replay_buffer", "restore_after_load"]
+__all__ = ["BUFFER_ROWS", "empty_rows", "read_replay_buffer"]
 
 # The attribute through which the buffer's rows travel in the zip, as one of SB3's "pytorch variables".
 BUFFER_ROWS = "_buffer_rows"
@@ -29,27 +25,6 @@ BUFFER_ROWS = "_buffer_rows"
 def empty_rows() -> th.Tensor:
     """The placeholder of ``BUFFER_ROWS`` between a save and a load."""
     return th.zeros(0, dtype=th.float64)
-
-
-def restore_after_load(model: Any) -> None:
-    """
-    After SB3's ``load``: put the saved rows back in the (new, empty) shared buffer and give the known
-    reward heads their reward function (the model's ``reward_fn`` or the env's ``expected_reward``).
-
-    :param model: the model SB3's ``load`` returned
-    """
-    rows = getattr(model, BUFFER_ROWS)
-    if len(rows):
-        model.replay_buffer.restore_packed_rows(rows.numpy())
-    setattr(model, BUFFER_ROWS, empty_rows())
-    reward_fn = known_reward_fn(model, required=False)
-    for learner in model.task_learners.values():
-        if (
-            isinstance(learner.head, KnownRewardHead)
-            and learner.head.reward_fn is None
-            and reward_fn is not None
-        ):
-            learner.head.bind(reward_fn)
 
 
 def read_replay_buffer(

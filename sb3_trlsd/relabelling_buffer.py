@@ -20,16 +20,13 @@ from stable_baselines3.common.type_aliases import DictReplayBufferSamples, Repla
 from stable_baselines3.common.vec_env import VecNormalize
 
 from sb3_trlsd.buffers import SharedDynamicsReplayBuffer
-from sb3_trlsd.builders import new_reward_head, state_box
+from sb3_trlsd.config import TRLSDConfig
 from sb3_trlsd.data import Transitions
-from sb3_trlsd.feature_maps import FeatureMap, make_feature_map
+from sb3_trlsd.feature_maps import FeatureMap
 from sb3_trlsd.observations import split_observation
-from sb3_trlsd.reward_heads import REWARD_HEAD_NAMES, RewardHead
+from sb3_trlsd.reward_heads import RewardFn, RewardHead
 
-__all__ = ["LEARNT_REWARD_HEADS", "RelabellingReplayBuffer", "dqn_q_values"]
-
-# The heads learnt from observed rewards; "known" needs no relabelling buffer (the env gives its reward).
-LEARNT_REWARD_HEADS = tuple(name for name in REWARD_HEAD_NAMES if name != "known")
+__all__ = ["RelabellingReplayBuffer", "dqn_q_values"]
 
 
 class RelabellingReplayBuffer(SharedDynamicsReplayBuffer):
@@ -88,26 +85,30 @@ class RelabellingReplayBuffer(SharedDynamicsReplayBuffer):
     :param observation_space: the env's observation space (Box, or Dict with ``state`` and ``task``)
     :param action_space: the env's (Discrete) action space
     :param device: PyTorch device for sampled batches
-    :param n_envs: number of parallel environments (1 to load source transitions)
+    :param n_envs: number of parallel environments, whose steps are stored as consecutive rows
     :param optimize_memory_usage: not supported (next states are kept apart), must be False
     :param handle_timeout_termination: keep truncations apart from terminations so that learners
         bootstrap through them
-    :param reward_head: ``"ridge"`` (eq. 9), ``"tabular"`` (eq. 10 on a grid over the state box, or a
-        ``cell_fn`` in ``reward_head_kwargs``), ``"corners"`` (only the grid's corner cells pay), or a
-        ``RewardHead`` copied for each task (then ``kappa``, ``sigma``, ``similarity`` and the feature map
-        arguments are not used)
+    :param reward_head: any of ``TRLSD``'s: ``"ridge"`` (eq. 9), ``"tabular"`` (eq. 10 on a grid over the
+        state box, or a ``cell_fn`` in ``reward_head_kwargs``), ``"corners"`` (only the grid's corner cells
+        pay), ``"known"`` (``reward_fn``: the source rows get the known reward), ``"ridge_posterior"``,
+        ``"thompson"``, ``"bernstein"``; or a ``RewardHead`` copied for each task (then ``kappa``, ``sigma``,
+        ``similarity`` and the feature map arguments are not used)
     :param kappa: optimism (eq. 9, 10); 0 relabels with the estimate R^ alone
     :param sigma: width of the ridge head's similarity (eq. 8): for eq. 6 a fraction of the state box (None:
         ``default_kernel_width(d)``, 0.04 in 2-D, the paper's 0.2 on the maze); for eq. 7 a distance between
         feature vectors (None: 0.2)
     :param similarity: ``"state"`` (eq. 6) or ``"features"`` (eq. 7)
-    :param feature_map: Phi of the ridge head: ``"rbf"``, ``"fourier"``, ``"auto"`` (see
+    :param feature_map: Phi of the feature heads: ``"rbf"``, ``"fourier"``, ``"auto"`` (see
         ``make_feature_map``) or a ``FeatureMap``
-    :param feature_map_kwargs: further arguments of ``make_feature_map`` (``rbf_per_dim``, ``rbf_sigma``,
-        ``fourier_features``, ``seed``)
+    :param rbf_per_dim: RBF centres per state dimension of the grid (see ``TRLSD``)
+    :param rbf_sigma: width of the features, a fraction of the state box (see ``TRLSD``)
+    :param fourier_features: the number of Fourier features (see ``TRLSD``)
     :param state_bounds: ``(low, high)`` of the states for an unbounded Box (None: the Box's, finite)
     :param reward_head_kwargs: further arguments of the heads (``r_max``, ``w_floor``, ``ridge``; ``cell_fn``,
         ``n_cells``, ``cells_per_dim`` for the tabular ones)
+    :param reward_fn: ``reward_fn(states, task) -> (n,)``, the expected reward of the ``"known"`` head
+    :param seed: seed of the Fourier features and of the ``"thompson"`` heads' draws
     :param relabel_online_rows: relabel the online rows too (False: they keep their observed reward)
     """
 
@@ -128,16 +129,28 @@ class RelabellingReplayBuffer(SharedDynamicsReplayBuffer):
         sigma: float | Sequence[float] | None = None,
         similarity: str = "state",
         feature_map: str | FeatureMap = "auto",
-        feature_map_kwargs: dict[str, Any] | None = None,
+        rbf_per_dim: int = 5,
+        rbf_sigma: float | Sequence[float] | None = None,
+        fourier_features: int | None = None,
         state_bounds: tuple[Sequence[float], Sequence[float]] | None = None,
         reward_head_kwargs: dict[str, Any] | None = None,
+        reward_fn: RewardFn | None = None,
+        seed: int | None = None,
         relabel_online_rows: bool = False,
     ):
-        if not isinstance(reward_head, RewardHead) and reward_head not in LEARNT_REWARD_HEADS:
-            raise ValueError(
-                f"reward_head must be one of {list(LEARNT_REWARD_HEADS)} or a RewardHead, got "
-                f"{reward_head!r} (a known reward needs no relabelling: the env's rewards are the known ones)"
-            )
+        # TRLSD's settings of the relabelling, checked (and named) before anything is built.
+        self.config = TRLSDConfig(
+            reward_head=reward_head,
+            kappa=kappa,
+            sigma=sigma,
+            similarity=similarity,
+            feature_map=feature_map,
+            rbf_per_dim=rbf_per_dim,
+            rbf_sigma=rbf_sigma,
+            fourier_features=fourier_features,
+            state_bounds=state_bounds,
+            reward_head_kwargs=reward_head_kwargs or {},
+        )
         super().__init__(
             buffer_size,
             observation_space,
@@ -148,30 +161,10 @@ class RelabellingReplayBuffer(SharedDynamicsReplayBuffer):
             handle_timeout_termination=handle_timeout_termination,
         )
         self.dict_observations = isinstance(observation_space, spaces.Dict)
-        # The attributes builders.new_reward_head reads, named as TRLSD's.
-        self.reward_head = reward_head
-        self.kappa = kappa
-        self.sigma = sigma
-        self.similarity = similarity
-        self.state_bounds = state_bounds
-        self.reward_head_kwargs = dict(reward_head_kwargs or {})
         self.relabel_online_rows = bool(relabel_online_rows)
-        self.features = None
-        if reward_head == "ridge":
-            low, high = state_box(self)
-            self.features = (
-                feature_map
-                if isinstance(feature_map, FeatureMap)
-                else make_feature_map(
-                    feature_map,
-                    low,
-                    high,
-                    n_actions=0,
-                    n_tasks=self.n_tasks,
-                    **dict(feature_map_kwargs or {}),
-                )
-            )
-        self.reward_heads = [new_reward_head(self, task) for task in range(self.n_tasks)]
+        builder = self.config.builder(observation_space, n_actions=0, linear_q=False, seed=seed)
+        self.features = builder.features
+        self.reward_heads = [builder.reward_head(task, reward_fn=reward_fn) for task in range(self.n_tasks)]
 
     # ----------------------------------------------------------------- storing
     def add(
@@ -183,7 +176,7 @@ class RelabellingReplayBuffer(SharedDynamicsReplayBuffer):
         done: np.ndarray,
         infos: list[dict[str, Any]],
     ) -> None:
-        """Store one step of the ``n_envs`` envs (validated first), and teach each task's head its rewards."""
+        """Store one step of the envs (validated first), and teach each task's head its rewards."""
         super().add(obs, next_obs, action, reward, done, infos)
         states, tasks = split_observation(obs, self.obs_shape[0])
         rewards = np.asarray(reward, dtype=np.float64).reshape(-1)

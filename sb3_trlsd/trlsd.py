@@ -1,39 +1,66 @@
 """
-TRLSD: transfer reinforcement learning with shared dynamics, as an SB3 off-policy algorithm: its settings,
-its model (policy, shared buffer and feature map) and its task learners. Its online loop is
-``online_loop.py``'s, what it adds to SB3's interface ``sb3_interface.py``'s.
+TRLSD: transfer reinforcement learning with shared dynamics, as an SB3 off-policy algorithm. This module is
+the SB3 glue: the constructor makes the settings a ``TRLSDConfig``; SB3's rollout hooks, ``act``,
+``add_online_transition`` and ``update_policy`` drive the ``Engine`` of Algorithm 1 with one run;
+``save``/``load`` keep the shared buffer's rows; ``learn`` loads the source set once and writes the HParams.
 """
 
 from __future__ import annotations
 
+import io
 import os
+import pathlib
+import warnings
 from collections.abc import Callable, Sequence
-from typing import Any, ClassVar
+from typing import Any, ClassVar, TypeVar
 
 import gymnasium as gym
 import numpy as np
 import torch as th
+from gymnasium import spaces
+from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.noise import ActionNoise
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.policies import BasePolicy
-from stable_baselines3.common.type_aliases import GymEnv, Schedule
+from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
 
 from sb3_trlsd.buffers import SharedDynamicsReplayBuffer
-from sb3_trlsd.builders import new_task_learner, shared_features, state_box
+from sb3_trlsd.callbacks import TaskView, has_tensorboard, log_hyperparameters, log_task_picture
+from sb3_trlsd.config import LearnerBuilder, TRLSDConfig, check_discount
 from sb3_trlsd.data import Transitions
+from sb3_trlsd.engine import Engine, Run
 from sb3_trlsd.feature_maps import FeatureMap
-from sb3_trlsd.fqi import DEFAULT_TOL
-from sb3_trlsd.online_loop import TRLSDOnlineLoop
-from sb3_trlsd.persistence import empty_rows
+from sb3_trlsd.fqi import DEFAULT_TOL, FQIResult
+from sb3_trlsd.observations import split_observation, state_space_of
+from sb3_trlsd.persistence import BUFFER_ROWS, empty_rows, read_replay_buffer
 from sb3_trlsd.policies import LinearPolicy, MlpPolicy, TaskQPolicy
-from sb3_trlsd.reward_heads import RewardFn, RewardHead
-from sb3_trlsd.sb3_interface import TRLSDInterface
-from sb3_trlsd.settings import check_arguments, resolve_policy
+from sb3_trlsd.q_functions import PolicyQFunctions
+from sb3_trlsd.reward_heads import KnownRewardHead, RewardFn, RewardHead
+from sb3_trlsd.source_data import check_source_transitions, source_transitions_of
 from sb3_trlsd.task_learner import TaskLearner
 
-__all__ = ["TRLSD"]
+__all__ = ["TRLSD", "UNFITTED_TASK"]
+
+SelfTRLSD = TypeVar("SelfTRLSD", bound="TRLSD")
+UNFITTED_TASK = (
+    "task {task} has never been fitted: its Q-function is 0 and predict returns action 0 for every state; "
+    "learn on it first, or call model.update_policy({task})"
+)
+# Settings of the features Phi that belong to TRLSD (which shares Phi between the policy and the heads).
+FEATURE_SETTINGS = ("features", "rbf_per_dim", "rbf_sigma", "state_bounds")
 
 
-class TRLSD(TRLSDInterface, TRLSDOnlineLoop, OffPolicyAlgorithm):
+class _SingleTaskReward:
+    """A Box-observation env's ``expected_reward(states)`` seen as ``reward_fn(states, task)`` (one task)."""
+
+    def __init__(self, expected_reward: Callable[[np.ndarray], np.ndarray]):
+        self.expected_reward = expected_reward
+
+    def __call__(self, states: np.ndarray, task: int) -> np.ndarray:
+        return self.expected_reward(states)
+
+
+class TRLSD(OffPolicyAlgorithm):
     """
     Transfer Reinforcement Learning with Shared Dynamics (TRLSD).
 
@@ -42,9 +69,11 @@ class TRLSD(TRLSDInterface, TRLSDOnlineLoop, OffPolicyAlgorithm):
     replaced by an optimistic proxy R~ = R^ + CI learnt from that task's own samples (section 3), and its Q
     is refitted on that relabelled set by Fitted-Q Iteration (Algorithm 1): at its first step (or after its
     first sample, ``first_fit``), then whenever the CI at an encountered state has been divided by
-    ``update_ratio``. Each task's learning state is a ``TaskLearner``; ``TRLSDOnlineLoop`` runs the online
-    loop (``act``, ``add_online_transition``, ``train``, ``update_policy``); ``TRLSDInterface`` adds SB3's
-    save/load (with the buffer's rows), learn and predict.
+    ``update_ratio``. The settings of the learning are a ``TRLSDConfig`` (``model.config``); each task's
+    learning state is a ``TaskLearner`` (``task_learner``); the online loop is an ``Engine`` of one run that
+    SB3's rollout drives (all ``n_envs`` envs feed the one shared buffer and the one learner per task), and
+    so do ``act`` and ``add_online_transition`` from a loop of one's own. ``save``/``load`` keep the buffer's
+    rows, so that a loaded model goes on learning as an uninterrupted one would.
 
     Defaults are the paper's (section 4) where it gives them: kappa and sigma of the continuous setting,
     ``update_ratio=2``, lambda = 1 for the reward regression, 5x5 RBFs of width 0.2. The paper does not
@@ -52,8 +81,8 @@ class TRLSD(TRLSDInterface, TRLSDOnlineLoop, OffPolicyAlgorithm):
     (its effective horizon of ~10 steps covers the longest path around the walls) and keeps FQI short.
 
     :param policy: ``"LinearPolicy"`` (the paper's linear Q on RBF features) or ``"MlpPolicy"``
-    :param env: the environment (Gymnasium env, VecEnv with one env, or registered id); observations are a
-        state Box, or a ``{"state": Box, "task": Discrete}`` Dict for several tasks
+    :param env: the environment (Gymnasium env, VecEnv of any number of envs, or registered id); observations
+        are a state Box, or a ``{"state": Box, "task": Discrete}`` Dict for several tasks
     :param gamma: discount factor
     :param reward_head: ``"ridge"`` (eq. 9), ``"tabular"`` (per-cell means, eq. 10, on a grid over the state
         box or a ``cell_fn``), ``"corners"`` (only the grid's corner cells pay), ``"known"`` (CI = 0); other
@@ -114,6 +143,9 @@ class TRLSD(TRLSDInterface, TRLSDOnlineLoop, OffPolicyAlgorithm):
     }
     policy: TaskQPolicy
     replay_buffer: SharedDynamicsReplayBuffer
+    config: TRLSDConfig
+    engine: Engine
+    _builder: LearnerBuilder
     features: FeatureMap | None
     task_learners: dict[int, TaskLearner]
 
@@ -156,9 +188,38 @@ class TRLSD(TRLSDInterface, TRLSDOnlineLoop, OffPolicyAlgorithm):
         device: th.device | str = "cpu",
         _init_setup_model: bool = True,
     ):
+        # The settings are checked first: a bad one is named before any env is built.
+        self.config = TRLSDConfig(
+            reward_head=reward_head,
+            kappa=kappa,
+            sigma=sigma,
+            similarity=similarity,
+            update_ratio=update_ratio,
+            first_fit=first_fit,
+            fqi_max_iterations=fqi_max_iterations,
+            fqi_tol=fqi_tol,
+            feature_map=feature_map,
+            rbf_per_dim=rbf_per_dim,
+            rbf_sigma=rbf_sigma,
+            fourier_features=fourier_features,
+            state_bounds=state_bounds,
+            reward_head_kwargs=reward_head_kwargs or {},
+        )
+        check_source_transitions(source_transitions)
+        if isinstance(log_picture_every, bool) or not (
+            isinstance(log_picture_every, (int, np.integer)) and log_picture_every >= 0
+        ):
+            raise ValueError(f"log_picture_every must be an integer >= 0, got {log_picture_every!r}")
+        shadowed = sorted(set(policy_kwargs or {}) & set(FEATURE_SETTINGS))
+        if shadowed:
+            raise ValueError(
+                f"policy_kwargs may not set {shadowed}: the features are TRLSD's, shared by the policy and "
+                "the reward heads; give feature_map, rbf_per_dim, rbf_sigma or state_bounds to TRLSD(...)"
+            )
+        check_discount(gamma)
         super().__init__(
             # Resolved here: SB3 would otherwise ask for "MultiInputPolicy" on Dict observations.
-            policy=resolve_policy(policy, self.policy_aliases),
+            policy=_policy_class(policy, self.policy_aliases),
             env=env,
             learning_rate=learning_rate,
             buffer_size=buffer_size,
@@ -175,30 +236,21 @@ class TRLSD(TRLSDInterface, TRLSDOnlineLoop, OffPolicyAlgorithm):
             device=device,
             seed=seed,
             sde_support=False,
-            support_multi_env=False,
+            support_multi_env=True,
         )
-        self.reward_head = reward_head
-        self.kappa = kappa
-        self.sigma = sigma
-        self.similarity = similarity
-        self.update_ratio = update_ratio
-        self.first_fit = first_fit
-        self.fqi_max_iterations = fqi_max_iterations
-        self.fqi_tol = fqi_tol
-        self.feature_map = feature_map
-        self.rbf_per_dim = rbf_per_dim
-        self.rbf_sigma = rbf_sigma
-        self.fourier_features = fourier_features
-        self.state_bounds = state_bounds
         self.reward_fn = reward_fn
-        self.reward_head_kwargs = dict(reward_head_kwargs or {})
         self.source_transitions = source_transitions
         self.source_seed = source_seed
         self.source_env = source_env
         self.log_picture_every = log_picture_every
         self._source_loaded = False
         self.task_learners = {}
-        check_arguments(self)
+        # load() builds the model without an env first: the spaces are checked once they are known.
+        action_space = getattr(self, "action_space", None)
+        if action_space is not None and not isinstance(action_space, spaces.Discrete):
+            raise ValueError(f"TRLSD needs a Discrete action space (env), got {action_space}")
+        if getattr(self, "observation_space", None) is not None:
+            state_space_of(self.observation_space)
         if _init_setup_model:
             self._setup_model()
 
@@ -210,35 +262,66 @@ class TRLSD(TRLSDInterface, TRLSDOnlineLoop, OffPolicyAlgorithm):
                 "replay_buffer_class must be a SharedDynamicsReplayBuffer subclass, "
                 f"got {self.replay_buffer_class}"
             )
-        # One feature map Phi, for the linear policy and the ridge heads.
-        self.features = shared_features(self)
-        if issubclass(self.policy_class, LinearPolicy):
+        assert isinstance(self.action_space, spaces.Discrete)
+        linear_q = issubclass(self.policy_class, LinearPolicy)
+        self._builder = self.config.builder(
+            self.observation_space, int(self.action_space.n), linear_q=linear_q, seed=self.seed
+        )
+        # One feature map Phi, for the linear policy and the feature heads.
+        self.features = self._builder.features
+        if linear_q:
             self.policy_kwargs["features"] = self.features
         elif issubclass(self.policy_class, MlpPolicy):
-            self.policy_kwargs["state_bounds"] = state_box(self)
+            self.policy_kwargs["state_bounds"] = (self._builder.low, self._builder.high)
         super()._setup_model()
-        self._fit_rows = self.policy.new_fit_rows()  # the buffer's rows as the Q-function fits on them
         self._buffer_rows = empty_rows()  # the buffer's rows, during save and load only
         self._warned_unfitted: set[int] = set()
+        self.engine = self._new_engine()
+
+    def _new_engine(self) -> Engine:
+        """The engine of this model's one run: its shared buffer, task learners and policy."""
+        return Engine(
+            [Run(self.replay_buffer, self.task_learners)],
+            PolicyQFunctions(self.policy),
+            lambda run, task: self.new_task_learner(task),
+            gamma=self.gamma,
+            max_iterations=self.config.fqi_max_iterations,
+            tol=self.config.fqi_tol,
+            on_refit=self._log_refit,
+        )
 
     # ------------------------------------------------------------- task learners
+    def _known_reward_fn(self) -> RewardFn | None:
+        """The model's ``reward_fn``, else the env's ``expected_reward`` (None without either)."""
+        if self.reward_fn is not None:
+            return self.reward_fn
+        env = self.env
+        if env is None or not env.has_attr("expected_reward"):
+            return None
+        method = env.get_attr("expected_reward", indices=0)[0]
+        return method if isinstance(self.observation_space, spaces.Dict) else _SingleTaskReward(method)
+
+    def new_task_learner(self, task: int, seed: int | None = None) -> TaskLearner:
+        """
+        A learning state of ``task`` with no samples, as this model's settings make it: for runs driven
+        beside the model (``task_learner`` is the model's own).
+
+        :param task: the task
+        :param seed: the run's seed, of a ``"thompson"`` head's draws (None: the model's)
+        :return: the learner
+        """
+        reward_fn = self._known_reward_fn() if self.config.reward_head == "known" else None
+        return self._builder.task_learner(task, reward_fn=reward_fn, seed=self.seed if seed is None else seed)
+
     def task_learner(self, task: int) -> TaskLearner:
-        """The learning state of ``task``, created (with no samples) the first time it is asked for."""
+        """
+        The learning state of ``task``: its reward head (``.head``), refit trigger and refit count; created
+        (with no samples) the first time it is asked for.
+        """
         task = int(task)
         if not 0 <= task < self.policy.n_tasks:
             raise ValueError(f"task must be in 0..{self.policy.n_tasks - 1}, got {task}")
-        if task not in self.task_learners:
-            self.task_learners[task] = new_task_learner(self, task)
-        return self.task_learners[task]
-
-    def reward_head_of(self, task: int) -> RewardHead:
-        """The reward head of ``task`` (see ``task_learner``)."""
-        return self.task_learner(task).head
-
-    @property
-    def reward_heads(self) -> dict[int, RewardHead]:
-        """The reward head of every task seen so far."""
-        return {task: learner.head for task, learner in self.task_learners.items()}
+        return self.engine.learner(0, task)
 
     @property
     def policy_updates(self) -> dict[int, int]:
@@ -263,3 +346,298 @@ class TRLSD(TRLSDInterface, TRLSDOnlineLoop, OffPolicyAlgorithm):
         # New dynamics data: every fitted task is refitted at the next training round.
         for learner in self.task_learners.values():
             learner.due = learner.due or learner.fitted
+
+    # ------------------------------------------------------ the online loop (SB3)
+    def _sample_action(
+        self, learning_starts: int, action_noise: ActionNoise | None = None, n_envs: int = 1
+    ) -> tuple[np.ndarray, np.ndarray]:
+        # A task's Q is fitted at its first step, before the policy acts on it (unless ``first_fit`` waits).
+        if self.num_timesteps >= learning_starts and self._last_obs is not None:
+            _, tasks = split_observation(self._last_obs, self.replay_buffer.obs_shape[0])
+            self.engine.fit_first(np.zeros(len(tasks), dtype=np.int64), tasks)
+            # Acting before the first fit is first_fit's rule: predict does not warn about it.
+            self._warned_unfitted.update(int(task) for task in tasks if not self.task_learner(task).fitted)
+        return super()._sample_action(learning_starts, action_noise, n_envs)
+
+    def _on_step(self) -> None:
+        """Feed the transitions just stored (one row per env) to the engine: their tasks' learners."""
+        self._observe_stored(self.n_envs)
+
+    def _observe_stored(self, n_rows: int) -> None:
+        """Feed the last ``n_rows`` rows of the shared buffer to the engine, as its one run's transitions."""
+        buffer = self.replay_buffer
+        rows = (buffer.pos - np.arange(n_rows, 0, -1)) % buffer.buffer_size
+        tasks = buffer.tasks[rows, 0]
+        timeouts = buffer.timeouts[rows, 0].astype(bool)
+        self.engine.observe(
+            np.zeros(n_rows, dtype=np.int64),
+            buffer.observations[rows, 0],
+            buffer.actions[rows, 0, 0],
+            buffer.rewards[rows, 0],
+            buffer.next_observations[rows, 0],
+            tasks,
+            buffer.dones[rows, 0].astype(bool) & ~timeouts,
+            timeouts,
+            store=False,
+        )
+        if getattr(self, "_logger", None) is not None:
+            self.logger.record("reward/target_samples", self.task_learner(tasks[-1]).head.n_samples)
+
+    def train(self, gradient_steps: int, batch_size: int) -> None:
+        """
+        One training round: refit the Q-function of every task whose trigger fired since the last round.
+        Fitted-Q Iteration fits on the whole relabelled buffer, so there are no minibatches: SB3 calls this
+        only when ``gradient_steps > 0``, and ``batch_size`` has no use here.
+        """
+        self.engine.refit_due()
+
+    # ------------------------------------------------- the online loop (one's own)
+    def act(self, obs: dict[str, np.ndarray] | np.ndarray) -> int:
+        """
+        The action ``learn`` takes from one observation: the task's Q is fitted first if it never was (under
+        ``first_fit="first_step"``), then the greedy action. With ``add_online_transition``, it drives TRLSD
+        from a loop of one's own with the same result as ``learn``, without SB3's rollout machinery.
+
+        :param obs: one observation of the env (not batched)
+        :return: the action
+        """
+        states, tasks = split_observation(obs, self.replay_buffer.obs_shape[0])
+        return int(self.engine.act(np.zeros(1, dtype=np.int64), states[:1], tasks[:1])[0])
+
+    def add_online_transition(
+        self,
+        obs: dict[str, np.ndarray] | np.ndarray,
+        action: int,
+        reward: float,
+        next_obs: dict[str, np.ndarray] | np.ndarray,
+        terminated: bool,
+        truncated: bool,
+    ) -> None:
+        """
+        Do with one online transition what ``learn`` does after an env step: store it in the shared buffer
+        (with the precision SB3 stores it), feed it to its task's learner, and refit the tasks whose trigger
+        fired. A transition with a non-finite value, a wrong shape or a task out of range raises a
+        ValueError and leaves the model as it was. See ``act``.
+
+        :param obs: observation before the step (not batched)
+        :param action: action taken
+        :param reward: reward received
+        :param next_obs: observation after the step (before any reset)
+        :param terminated: the step reached an absorbing state
+        :param truncated: the trajectory was cut (no absorbing state: FQI bootstraps through it)
+        """
+        self.replay_buffer.add(
+            obs,
+            next_obs,
+            np.array([[action]]),
+            np.array([reward], dtype=np.float64),
+            np.array([terminated or truncated]),
+            [{"TimeLimit.truncated": truncated and not terminated}],
+        )
+        self.num_timesteps += 1
+        self._observe_stored(1)
+        self.engine.refit_due()
+
+    def update_policy(self, task: int) -> None:
+        """
+        Recompute the policy of ``task`` now: relabel the whole shared buffer with the task's reward proxy R~
+        (Algorithm 1, psi) and fit its Q-function on it by Fitted-Q Iteration. ``learn`` calls this at a
+        task's first fit (``first_fit``) and whenever its refit trigger fires; call it directly to learn
+        offline from transitions loaded with ``keep_rewards=True`` (or with the ``"known"`` reward head).
+
+        :param task: the task index
+        """
+        self.task_learner(task)  # checks the task
+        self.engine.refit([(0, int(task))])
+
+    def _log_refit(self, run: int, learner: TaskLearner, result: FQIResult, rewards: np.ndarray) -> None:
+        """
+        What a refit writes to the logger (nothing outside ``learn``, before SB3 made one):
+        ``train/policy_updates``, ``train/fqi_iterations``, ``train/bellman_residual``, ``reward/ci_mean``
+        (the optimism applied, mean of R~ - R^ over the relabelled set, when the logger writes somewhere),
+        and the task's picture when one is due.
+        """
+        self._n_updates += 1
+        if getattr(self, "_logger", None) is None:
+            return
+        self.logger.record("train/policy_updates", sum(self.policy_updates.values()))
+        self.logger.record("train/fqi_iterations", result.iterations)
+        self.logger.record("train/bellman_residual", result.bellman_residual)
+        if len(rewards) and self.logger.output_formats:
+            states = self.replay_buffer.transitions().states
+            self.logger.record("reward/ci_mean", float(np.mean(rewards - learner.head.estimate(states))))
+        every = self.log_picture_every
+        due = every and (learner.refits == 1 or learner.refits % every == 0)
+        if due and has_tensorboard(self.logger):
+            view = TaskView(
+                task=learner.task,
+                estimate=learner.head.estimate,
+                bonus=learner.head.bonus,
+                q_values=lambda states: self.policy.q_values(states, learner.task),
+                trajectory=self.replay_buffer.recent_states(learner.task, 50),
+            )
+            log_task_picture(self.logger, self.env, view, self.num_timesteps)
+
+    # ------------------------------------------------------------- save and load
+    def _excluded_save_params(self) -> list[str]:
+        # Rebuilt by _setup_model, or not saved on purpose (a reward_fn is often an env's method).
+        derived = ["features", "engine", "_builder", "_warned_unfitted", "reward_fn"]
+        return [*super()._excluded_save_params(), *derived]
+
+    def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
+        return ["policy"], [BUFFER_ROWS]
+
+    def save(
+        self,
+        path: str | pathlib.Path | io.BufferedIOBase,
+        exclude: list[str] | None = None,
+        include: list[str] | None = None,
+    ) -> None:
+        """SB3's ``save``, with the shared buffer's rows in the zip (so that ``load`` can go on learning)."""
+        self._buffer_rows = th.as_tensor(self.replay_buffer.packed_rows())
+        try:
+            super().save(path, exclude=exclude, include=include)
+        finally:
+            self._buffer_rows = empty_rows()
+
+    @classmethod
+    def load(  # type: ignore[override]
+        cls: type[SelfTRLSD],
+        path: str | pathlib.Path | io.BufferedIOBase,
+        env: GymEnv | None = None,
+        device: th.device | str = "auto",
+        custom_objects: dict[str, Any] | None = None,
+        print_system_info: bool = False,
+        force_reset: bool = True,
+        **kwargs: Any,
+    ) -> SelfTRLSD:
+        """SB3's ``load``; the shared buffer comes back with its rows, the known heads with reward_fn."""
+        model = super().load(path, env, device, custom_objects, print_system_info, force_reset, **kwargs)
+        rows = model._buffer_rows
+        if len(rows):
+            model.replay_buffer.restore_packed_rows(rows.numpy())
+        model._buffer_rows = empty_rows()
+        reward_fn = model._known_reward_fn()
+        for learner in model.task_learners.values():
+            head = learner.head
+            if isinstance(head, KnownRewardHead) and head.reward_fn is None and reward_fn is not None:
+                head.bind(reward_fn)
+        return model
+
+    def load_replay_buffer(
+        self, path: str | pathlib.Path | io.BufferedIOBase, truncate_last_traj: bool = True
+    ) -> None:
+        """
+        Load a buffer saved by ``save_replay_buffer``: a ``SharedDynamicsReplayBuffer`` of this env's layout.
+
+        :raises ValueError: naming the file, when it cannot be read or holds another kind of buffer
+        """
+        buffer = read_replay_buffer(path, self.replay_buffer, self.verbose)
+        buffer.device = self.device
+        self.replay_buffer = buffer
+        self.engine.runs[0].buffer = buffer
+
+    # ------------------------------------------------------ learn and predict
+    def _setup_learn(
+        self,
+        total_timesteps: int,
+        callback: MaybeCallback = None,
+        reset_num_timesteps: bool = True,
+        tb_log_name: str = "run",
+        progress_bar: bool = False,
+    ) -> tuple[int, BaseCallback]:
+        total_timesteps, callback = super()._setup_learn(
+            total_timesteps, callback, reset_num_timesteps, tb_log_name, progress_bar
+        )
+        log_hyperparameters(self.logger, self.hyperparameters(), self.num_timesteps)
+        return total_timesteps, callback
+
+    def hyperparameters(self) -> dict[str, int | float | str | bool]:
+        """The settings of this run, as TensorBoard's HParams tab shows them."""
+        settings: dict[str, Any] = {
+            "algorithm": type(self).__name__,
+            "policy": self.policy_class.__name__,
+            "gamma": self.gamma,
+            **self.config.hyperparameters(),
+            "n_features": getattr(self.features, "n_features", 0),
+            "source_transitions": self.source_transitions,
+            "seed": self.seed,
+        }
+        return {
+            key: value if isinstance(value, (int, float, bool)) else str(value)
+            for key, value in settings.items()
+        }
+
+    def _load_source_once(self) -> None:
+        """
+        Before ``learn``: load the source set into the shared buffer the first time (rewards discarded), and
+        warn when the buffer is empty although the model learnt before (a model saved without its rows).
+        """
+        if self.source_transitions is not None and not self._source_loaded:
+            source = source_transitions_of(
+                self.source_transitions,
+                self.source_env,
+                self.env,
+                self.seed if self.source_seed is None else self.source_seed,
+            )
+            self.load_transitions(source, keep_rewards=False)
+            self._source_loaded = True
+        learnt_before = self._source_loaded or any(learner.fitted for learner in self.task_learners.values())
+        if self.replay_buffer.size() == 0 and learnt_before:
+            warnings.warn(
+                "the shared buffer is empty although this model has learnt before (a model saved without "
+                "its buffer rows): restore it with model.load_replay_buffer(path) (saved by "
+                "save_replay_buffer) or model.load_transitions(...) before learn",
+                stacklevel=3,
+            )
+
+    def learn(
+        self: SelfTRLSD,
+        total_timesteps: int,
+        callback: MaybeCallback = None,
+        log_interval: int = 4,
+        tb_log_name: str = "TRLSD",
+        reset_num_timesteps: bool = True,
+        progress_bar: bool = False,
+    ) -> SelfTRLSD:
+        self._load_source_once()
+        super().learn(
+            total_timesteps=total_timesteps,
+            callback=callback,
+            log_interval=log_interval,
+            tb_log_name=tb_log_name,
+            reset_num_timesteps=reset_num_timesteps,
+            progress_bar=progress_bar,
+        )
+        # SB3 dumps the logs every log_interval episodes: a run's last values are kept too.
+        self.dump_logs()
+        return self
+
+    def predict(
+        self,
+        observation: np.ndarray | dict[str, np.ndarray],
+        state: tuple[np.ndarray, ...] | None = None,
+        episode_start: np.ndarray | None = None,
+        deterministic: bool = False,
+    ) -> tuple[np.ndarray, tuple[np.ndarray, ...] | None]:
+        """SB3's ``predict``; a task whose Q-function was never fitted is warned about, once per task."""
+        _, tasks = split_observation(observation, self.replay_buffer.obs_shape[0])
+        for task in np.unique(tasks):
+            learner = self.task_learners.get(int(task))
+            if (learner is None or not learner.fitted) and int(task) not in self._warned_unfitted:
+                self._warned_unfitted.add(int(task))
+                warnings.warn(UNFITTED_TASK.format(task=task), stacklevel=2)
+        return super().predict(observation, state, episode_start, deterministic)
+
+
+def _policy_class(policy: str | type[TaskQPolicy], aliases: dict[str, type[BasePolicy]]) -> type[BasePolicy]:
+    """
+    The policy class of ``policy``: a class as it is, or the class of a name among ``aliases``.
+
+    :raises ValueError: for an unknown name
+    """
+    if not isinstance(policy, str):
+        return policy
+    if policy not in aliases:
+        raise ValueError(f"policy must be one of {sorted(aliases)} or a policy class, got {policy!r}")
+    return aliases[policy]

@@ -24,14 +24,10 @@ from sb3_trlsd.experiments.runner import Method, multitask_run, transfer_run
 from sb3_trlsd_envs import MAZE_ID, expected_reward
 
 
-@pytest.mark.parametrize(
-    "method",
-    [Method("optimistic ridge"), Method("tabular", reward_head="tabular"), Method("kappa 0", kappa=0.0)],
-    ids=lambda method: method.label,
-)
-def test_fast_path_takes_the_actions_of_learn(method):
-    """If the fast path drifted from SB3's loop (seeding, resets, storage precision), states would differ."""
-    task, seed, n_source, n_online = 7, 3, 1_500, 250
+def test_a_transfer_run_records_the_rewards_of_the_states_learn_visits():
+    """If ``transfer_run`` drew its source or seeded its env otherwise than a model learning alone, or
+    scored other states, its rewards would differ (the engine's callers: ``test_engine.py``)."""
+    method, task, seed, n_source, n_online = Method("optimistic ridge"), 7, 3, 1_500, 250
     record = transfer_run(method, task, seed, n_source=n_source, n_online=n_online)
 
     env = gym.make(MAZE_ID, task=task)

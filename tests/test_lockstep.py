@@ -1,26 +1,19 @@
 """
-Runs in lockstep against the same runs alone: the batched Fitted-Q fit, the mazes stepped together, and a
-batch of TRLSD runs against ``TRLSD`` driven alone on the same seeds and source set.
-
-What is compared, and why it is enough: the actions of every step and the step (and task) of every refit.
-The refits of a run follow from its trigger, which reads its reward head, which reads the states its actions
-led to; so equal actions and refit steps mean the run went through the same states, samples and refits.
-The batched fit adds the shared and own rows' sums in another order than a fit of the run alone, so theta
-agrees to rounding (~1e-7 relative, float32 rows), not bit for bit; an action is an argmax, which rounding
-changes only where two Q-values tie within it, which these seeded cases do not meet.
+Runs in lockstep against the same runs alone: the batched Fitted-Q fit, the mazes stepped together, and the
+multi-task batch (the actions and refits of the engine's callers: ``test_engine.py``).
 """
 
 import gymnasium as gym
 import numpy as np
 import pytest
 
-from sb3_trlsd import TRLSD, collect_transitions
+from sb3_trlsd import TRLSD
 from sb3_trlsd.experiments.batches import batch_runs, multitask_batch, source_seed
 from sb3_trlsd.experiments.env_batches import GymEnvBatch, MazeBatch, env_batch
+from sb3_trlsd.experiments.lockstep import Lockstep
 from sb3_trlsd.experiments.reporting import mean_and_standard_error, window_means
 from sb3_trlsd.experiments.runner import Method, multitask_run
 from sb3_trlsd.fqi import LinearFQISolver, fit_linear_fqi_runs
-from sb3_trlsd.lockstep import Lockstep
 from sb3_trlsd_envs import CELL_NOISE_STDS, FOUR_ROOMS_ID, MAZE_ID
 from sb3_trlsd_envs.maze_runs import step_mazes
 
@@ -112,76 +105,6 @@ def test_env_batch_moves_plain_mazes_together_and_any_other_env_one_by_one():
     wrapped = gym.wrappers.TransformReward(gym.make(MAZE_ID), lambda reward: 2 * reward)
     assert type(env_batch([gym.make(MAZE_ID), wrapped])) is GymEnvBatch
     assert type(env_batch([gym.make(FOUR_ROOMS_ID)])) is GymEnvBatch
-
-
-def drive_alone(
-    model: TRLSD, env: gym.Env, n_steps: int, seed: int
-) -> tuple[list[int], list[tuple[int, int]]]:
-    """TRLSD driven alone: its actions, and (step, task) of each refit as ``LockstepRecord`` counts them."""
-    actions, refits = [], []
-    updates = dict(model.policy_updates)
-    obs, _ = env.reset(seed=seed)
-
-    def note_refits(step: int) -> None:
-        for task, count in model.policy_updates.items():
-            refits.extend([(step, task)] * (count - updates.get(task, 0)))
-        updates.update(model.policy_updates)
-
-    for step in range(n_steps):
-        action = model.act(obs)  # a first fit of the task, if any, comes before the action of this step
-        note_refits(step)
-        actions.append(action)
-        next_obs, reward, terminated, truncated, _ = env.step(action)
-        model.add_online_transition(obs, action, reward, next_obs, terminated, truncated)
-        note_refits(step + 1)
-        obs = env.reset()[0] if terminated or truncated else next_obs
-    return actions, refits
-
-
-@pytest.mark.parametrize(
-    "method",
-    [
-        Method("optimistic ridge"),
-        Method("tabular", reward_head="tabular", update_ratio=1.2),
-        Method("kappa 0", kappa=0.0),
-        Method("features similarity", similarity="features"),
-        Method("known", reward_head="known"),
-        Method("no transfer", transfer=False),
-        Method("ridge posterior", reward_head="ridge_posterior", kappa=0.3),
-        Method("thompson", reward_head="thompson", kappa=0.3),  # each run draws from its own seed
-        Method("bernstein", reward_head="bernstein", kappa=0.03, reward_head_kwargs={"reward_range": 0.5}),
-    ],
-    ids=lambda method: method.label,
-)
-def test_a_batch_takes_the_actions_and_refits_of_each_run_alone(method):
-    tasks, seeds, n_source, n_steps = (4, 12, 20), (30, 31, 32), 1_500, 200
-    source = collect_transitions(gym.make(MAZE_ID, task=0), n_source, seed=99) if method.transfer else None
-    envs = [gym.make(MAZE_ID, task=task) for task in tasks]
-    lockstep = Lockstep(method.make_model(envs[0], seeds[0]), env_batch(envs), len(envs), source, n_steps)
-    records = lockstep.run(seeds)
-
-    for task, seed, record in zip(tasks, seeds, records, strict=True):
-        env = gym.make(MAZE_ID, task=task)
-        model = method.make_model(env, seed)
-        if source is not None:
-            model.load_transitions(source, keep_rewards=False)
-        actions, refits = drive_alone(model, env, n_steps, seed)
-        np.testing.assert_array_equal(record.actions, actions)
-        assert record.refit_steps == refits and refits[0] == (0, task)
-    if method.reward_head != "known":  # the known head refits when the buffer doubles: not within 200 steps
-        assert all(len(record.refit_steps) > 5 for record in records)  # the triggers fired, and were compared
-
-
-def test_a_batch_on_another_family_steps_its_envs_one_by_one_with_the_same_result():
-    """The four rooms through GymEnvBatch: same actions and refits as TRLSD alone."""
-    seeds, n_steps = (1, 2), 120
-    envs = [gym.make(FOUR_ROOMS_ID, task=task) for task in (0, 3)]
-    lockstep = Lockstep(TRLSD("LinearPolicy", envs[0], seed=seeds[0]), env_batch(envs), 2, None, n_steps)
-    for env, seed, record in zip(envs, seeds, lockstep.run(seeds), strict=True):
-        alone_env = gym.make(FOUR_ROOMS_ID, task=env.unwrapped.task)
-        actions, refits = drive_alone(TRLSD("LinearPolicy", alone_env, seed=seed), alone_env, n_steps, seed)
-        np.testing.assert_array_equal(record.actions, actions)
-        assert record.refit_steps == refits
 
 
 def test_a_multitask_batch_gives_each_run_its_run_alone():

@@ -18,6 +18,7 @@ from sb3_trlsd.experiments import batches, multitask, reproduce, runner
 from sb3_trlsd.experiments.batches import multitask_batch, run_source_seed, source_seed, transfer_batch
 from sb3_trlsd.experiments.env_batches import env_batch
 from sb3_trlsd.experiments.figures import protocol_title
+from sb3_trlsd.experiments.lockstep import Lockstep
 from sb3_trlsd.experiments.protocols import (
     AS_BUILT,
     AS_BUILT_NAME,
@@ -29,7 +30,6 @@ from sb3_trlsd.experiments.protocols import (
 )
 from sb3_trlsd.experiments.run_cache import run_key
 from sb3_trlsd.experiments.runner import Method, multitask_env, run_online, transfer_run
-from sb3_trlsd.lockstep import Lockstep
 from sb3_trlsd.reward_heads import DEFAULT_W_FLOOR
 from sb3_trlsd_envs import MAZE_ID, SharedDynamicsMaze
 
@@ -97,12 +97,12 @@ def maze_resets(monkeypatch) -> list[dict]:
 @pytest.fixture
 def fits(monkeypatch) -> list[dict]:
     """The settings and relabelled rewards of every batched Fitted-Q call of a ``Lockstep``."""
-    import sb3_trlsd.lockstep as lockstep_module
+    import sb3_trlsd.q_functions as q_functions_module
 
     def note(fit, shared, own, rewards, **settings):
         return fit(shared, own, rewards, **settings), {"rewards": [np.array(r) for r in rewards], **settings}
 
-    return spy(monkeypatch, lockstep_module, "fit_linear_fqi_runs", note)
+    return spy(monkeypatch, q_functions_module, "fit_linear_fqi_runs", note)
 
 
 def outcome(records: list) -> list:
@@ -270,8 +270,10 @@ def test_each_preset_reaches_the_envs_models_and_heads_of_a_batch(name, lockstep
     assert lockstep_batches
     for lockstep in lockstep_batches:
         assert all(maze.termination_prob == protocol.online_termination_prob for maze in lockstep.envs.mazes)
-        assert lockstep.model.gamma == protocol.gamma and lockstep.model.first_fit == protocol.first_fit
-        head = lockstep.learner(0, TASKS[0]).head
+        assert (
+            lockstep.model.gamma == protocol.gamma and lockstep.model.config.first_fit == protocol.first_fit
+        )
+        head = lockstep.engine.learner(0, TASKS[0]).head
         assert head.r_max == protocol.r_max and head.w_floor == protocol.w_floor
         assert head.log_count_rule == protocol.log_count
         assert getattr(head, "unvisited_value", None) == protocol.tabular_unvisited
@@ -367,7 +369,7 @@ def test_r_max_caps_the_relabelled_rewards_where_the_floor_made_them_huge(fits):
             else:
                 assert first_fit_rewards.max() > 50
         model = method.make_model(gym.make(MAZE_ID, task=0), 0, preset("r-max-clip"))
-        head = model.reward_head_of(0)
+        head = model.task_learner(0).head
         head.update(np.array([[0.5, 0.5]]), np.array([3.0]))  # a lucky draw: R^ + CI > 1 at it
         far_and_near = np.array([[4.5, 4.5], [0.5, 0.5]])
         np.testing.assert_array_equal(head.optimistic(far_and_near), [1.0, 1.0])
@@ -377,7 +379,7 @@ def test_r_max_caps_the_relabelled_rewards_where_the_floor_made_them_huge(fits):
 
 def bonus_at(method: Method, protocol: Protocol, n_samples: int) -> float:
     """The bonus of a fresh head of ``method`` far from its ``n_samples`` samples."""
-    head = method.make_model(gym.make(MAZE_ID, task=0), 0, protocol).reward_head_of(0)
+    head = method.make_model(gym.make(MAZE_ID, task=0), 0, protocol).task_learner(0).head
     head.update(np.full((n_samples, 2), 0.5), np.zeros(n_samples))
     return float(head.bonus(np.array([[4.5, 4.5]]))[0])
 
@@ -461,7 +463,7 @@ def test_the_discrete_head_values_an_unvisited_cell_at_r_max_under_that_preset()
     visited, unvisited = np.array([[0.5, 0.5]]), np.array([[4.5, 4.5]])
     values = {}
     for name in ("as-built", "tabular-unvisited-r-max"):
-        head = DISCRETE.make_model(gym.make(MAZE_ID, task=0), 0, preset(name)).reward_head_of(0)
+        head = DISCRETE.make_model(gym.make(MAZE_ID, task=0), 0, preset(name)).task_learner(0).head
         head.update(np.repeat(visited, 3, axis=0), np.array([0.2, 0.4, 0.6]))
         values[name] = head.optimistic(np.concatenate([visited, unvisited]))
     today, r_max = values["as-built"], values["tabular-unvisited-r-max"]
@@ -469,8 +471,10 @@ def test_the_discrete_head_values_an_unvisited_cell_at_r_max_under_that_preset()
     assert r_max[1] == 1.0
     assert r_max[0] == today[0] == pytest.approx(0.4 + 0.1 * np.sqrt(np.log(3) / 3))
     corners = Method("corners", reward_head="corners")
-    head = corners.make_model(gym.make(MAZE_ID, task=0), 0, preset("tabular-unvisited-r-max")).reward_head_of(
-        0
+    head = (
+        corners.make_model(gym.make(MAZE_ID, task=0), 0, preset("tabular-unvisited-r-max"))
+        .task_learner(0)
+        .head
     )
     assert head.optimistic(np.array([[4.5, 4.5], [2.5, 2.5]])).tolist() == [
         1.0,
@@ -488,9 +492,11 @@ def test_new_model_settings_are_saved_loaded_and_checked(tmp_path):
     assert model.task_learner(2).first_fit == "first_sample"
     model.save(tmp_path / "model")
     loaded = TRLSD.load(tmp_path / "model", env=env)
-    assert loaded.first_fit == "first_sample" and loaded.hyperparameters()["first_fit"] == "first_sample"
-    assert loaded.reward_head_of(2).log_count_rule == "plus_1"
-    assert loaded.reward_head_of(2).unvisited_value == 1.0
+    assert (
+        loaded.config.first_fit == "first_sample" and loaded.hyperparameters()["first_fit"] == "first_sample"
+    )
+    assert loaded.task_learner(2).head.log_count_rule == "plus_1"
+    assert loaded.task_learner(2).head.unvisited_value == 1.0
     assert loaded.task_learner(2).first_fit == "first_sample"
     with pytest.raises(ValueError, match="first_fit must be one of"):
         TRLSD("LinearPolicy", env, first_fit="first_reward")
@@ -508,7 +514,7 @@ def test_a_method_s_head_kwargs_go_over_the_protocol_s_and_each_head_gets_what_a
     """
     protocol = Protocol(w_floor=1e-3, r_max=1.0)
     method = Method("beyond", reward_head=head, reward_head_kwargs={"r_max": 2.0})
-    built = method.make_model(gym.make(MAZE_ID, task=1), seed=0, protocol=protocol).reward_head_of(1)
+    built = method.make_model(gym.make(MAZE_ID, task=1), seed=0, protocol=protocol).task_learner(1).head
     assert built.r_max == 2.0
     assert (getattr(built, "w_floor", None) == 1e-3) is floored
     assert method.parameters()["reward_head_kwargs"] == {"r_max": 2.0}

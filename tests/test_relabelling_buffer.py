@@ -12,6 +12,7 @@ from stable_baselines3 import DQN
 from stable_baselines3.common.type_aliases import DictReplayBufferSamples, ReplayBufferSamples
 
 from sb3_trlsd import RelabellingReplayBuffer, Transitions, collect_transitions, dqn_q_values
+from sb3_trlsd.config import HEAD_NAMES
 from sb3_trlsd.experiments.baselines import DQN_SETTINGS, one_torch_thread
 from sb3_trlsd.features import gaussian_similarity
 from sb3_trlsd_envs.evaluation import greedy_expected_rewards
@@ -113,18 +114,20 @@ def test_source_rows_get_the_closed_form_optimistic_reward_of_the_target_task(ma
     np.testing.assert_allclose(rewards[~from_source], kept, rtol=1e-6)
 
 
-@pytest.mark.parametrize("reward_head", ["ridge", "tabular", "corners"])
+@pytest.mark.parametrize("reward_head", HEAD_NAMES)
 def test_source_rows_never_come_out_with_their_discarded_rewards(maze_spaces, reward_head):
-    """Loaded rewards are dropped, not stored: every sampled source row carries its head's R~ instead."""
+    """Loaded rewards are dropped, not stored: every sampled source row carries its head's R~ instead, for
+    each of TRLSD's heads (the known one gives the known reward)."""
     rng = np.random.default_rng(1)
-    buffer = make_buffer(*maze_spaces, reward_head=reward_head)
+    known = {"reward_fn": gym.make(MAZE_ID).unwrapped.expected_reward} if reward_head == "known" else {}
+    buffer = make_buffer(*maze_spaces, reward_head=reward_head, seed=0, **known)
     buffer.load_transitions(source_rows(rng, 1_000))
     add_online(buffer, rng, TARGET_TASK, 50)
     assert not np.any(buffer.rewards == DISCARDED_REWARD)
     head = buffer.reward_heads[TARGET_TASK]
     for seed in range(3):
         states, _, rewards = sampled_arrays(seeded_sample(buffer, 256, seed))
-        assert np.all(np.abs(rewards) < DISCARDED_REWARD / 10)
+        assert not np.any(rewards == np.float32(DISCARDED_REWARD))
         source = np.isin(states[:, 0], buffer.observations[:1_000, 0, 0])
         np.testing.assert_allclose(rewards[source], head.optimistic(states[source]), rtol=1e-5, atol=1e-6)
 
@@ -181,10 +184,12 @@ def test_sampling_a_source_row_before_any_online_row_says_what_to_do(maze_spaces
 
 
 def test_bad_settings_and_oversized_sources_are_refused(maze_spaces):
-    """A known or unknown head, or source rows that would overwrite stored rows, raise a ValueError."""
-    for name in ("known", "lasso"):
-        with pytest.raises(ValueError, match="reward_head must be one of"):
-            make_buffer(*maze_spaces, reward_head=name)
+    """An unknown head, a known one without its reward_fn, or source rows that would overwrite stored rows,
+    raise a ValueError."""
+    with pytest.raises(ValueError, match="reward_head must be one of"):
+        make_buffer(*maze_spaces, reward_head="lasso")
+    with pytest.raises(ValueError, match="needs reward_fn"):
+        make_buffer(*maze_spaces, reward_head="known")
     buffer = make_buffer(*maze_spaces, size=100)
     add_online(buffer, np.random.default_rng(6), TARGET_TASK, 10)
     with pytest.raises(ValueError, match="do not fit"):

@@ -315,7 +315,7 @@ def test_trlsd_learns_with_the_head(head):
     """
     model = TRLSD("LinearPolicy", gym.make(MAZE_ID, task=0), reward_head=head, seed=0)
     model.learn(60)
-    task_head = model.reward_heads[0]
+    task_head = model.task_learner(0).head
     assert type(task_head) is type(head) and task_head is not head
     assert task_head.n_samples == 60 and head.n_samples == 0
     assert model.policy_updates[0] >= 2
@@ -348,7 +348,7 @@ def test_trlsd_builds_the_head_by_name_saves_and_loads_it(name, kwargs, attribut
         seed=2,
     )
     model.learn(50)
-    head = model.reward_head_of(3)
+    head = model.task_learner(3).head
     assert type(head) is head_class and head.kappa == 0.3 and head.n_samples == 50
     assert getattr(head, attribute) == next(iter(kwargs.values()))
     if name == "bernstein":
@@ -359,18 +359,18 @@ def test_trlsd_builds_the_head_by_name_saves_and_loads_it(name, kwargs, attribut
 
     model.save(tmp_path / "model")
     loaded = TRLSD.load(tmp_path / "model", env=gym.make(MAZE_ID, task=3))
-    assert loaded.reward_head == name and type(loaded.reward_head_of(3)) is head_class
+    assert loaded.config.reward_head == name and type(loaded.task_learner(3).head) is head_class
     states = np.random.default_rng(0).uniform(0, 5, size=(200, 2))
     new_states, new_rewards = np.random.default_rng(1).uniform(0, 5, size=(30, 2)), np.ones(30)
     for twin in (model, loaded):
-        np.testing.assert_array_equal(twin.reward_head_of(3).optimistic(states), head.optimistic(states))
+        np.testing.assert_array_equal(twin.task_learner(3).head.optimistic(states), head.optimistic(states))
     for twin in (model, loaded):
-        twin.reward_head_of(3).update(new_states, new_rewards)
+        twin.task_learner(3).head.update(new_states, new_rewards)
     np.testing.assert_array_equal(
-        loaded.reward_head_of(3).optimistic(states), model.reward_head_of(3).optimistic(states)
+        loaded.task_learner(3).head.optimistic(states), model.task_learner(3).head.optimistic(states)
     )
     np.testing.assert_array_equal(
-        loaded.reward_head_of(3).uncertainty(states), model.reward_head_of(3).uncertainty(states)
+        loaded.task_learner(3).head.uncertainty(states), model.task_learner(3).head.uncertainty(states)
     )
 
 
@@ -379,14 +379,14 @@ def test_named_thompson_heads_draw_per_seed_and_task_reproducibly():
 
     def head_seeds(seed):
         model = TRLSD("LinearPolicy", gym.make(MAZE_ID, tasks="all"), reward_head="thompson", seed=seed)
-        return [model.reward_head_of(task).seed for task in (0, 1)]
+        return [model.task_learner(task).head.seed for task in (0, 1)]
 
     assert head_seeds(5) == head_seeds(5)
     assert len({*head_seeds(5), *head_seeds(6)}) == 4
     unseeded = TRLSD("LinearPolicy", gym.make(MAZE_ID), reward_head="thompson")
-    assert unseeded.reward_head_of(0).seed is None  # no seed: fresh entropy, as the head itself takes it
+    assert unseeded.task_learner(0).head.seed is None  # no seed: fresh entropy, as the head itself takes it
     given = TRLSD("LinearPolicy", gym.make(MAZE_ID), reward_head="thompson", reward_head_kwargs={"seed": 7})
-    assert given.reward_head_of(0).seed == 7
+    assert given.task_learner(0).head.seed == 7
 
 
 def test_trlsd_refuses_bernstein_with_the_feature_similarity():

@@ -4,6 +4,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.env_util import make_vec_env
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 from tensorboard.backend.event_processing.event_file_loader import EventFileLoader
 
@@ -40,7 +41,7 @@ def test_learn_relabels_fits_and_logs_to_tensorboard(source_transitions, tmp_pat
     model = make_model(source_transitions, tensorboard_log=str(tmp_path), kappa=0.1, sigma=0.04)
     model.learn(total_timesteps=300, log_interval=1)
     assert model.policy_updates[0] >= 2
-    assert model.reward_heads[0].n_samples == 300
+    assert model.task_learner(0).head.n_samples == 300
     (event_file,) = tmp_path.glob("TRLSD_1/events.out.tfevents.*")
     tags = set(EventAccumulator(str(event_file)).Reload().Tags()["scalars"])
     expected = {
@@ -99,7 +100,7 @@ def test_source_transitions_are_collected_from_a_copy_of_the_env_or_loaded_from_
     rows = first.replay_buffer.transitions()
     np.testing.assert_array_equal(rows.states, second.replay_buffer.transitions().states)
     assert len(rows) == 410
-    assert first.reward_heads[6].n_samples == 10  # tau_22's own online samples: source rewards discarded
+    assert first.task_learner(6).head.n_samples == 10  # tau_22's own online samples: source rewards discarded
     first.learn(total_timesteps=10, reset_num_timesteps=False)
     assert first.replay_buffer.size() == 420  # not collected again
 
@@ -192,11 +193,11 @@ def test_save_load_round_trip_predicts_the_same_and_keeps_learning(source_transi
     states = np.random.default_rng(0).uniform(0, 5, size=(500, 2))
     np.testing.assert_array_equal(loaded.policy.q_values(states, 0), model.policy.q_values(states, 0))
     np.testing.assert_allclose(
-        loaded.reward_heads[0].optimistic(states), model.reward_heads[0].optimistic(states)
+        loaded.task_learner(0).head.optimistic(states), model.task_learner(0).head.optimistic(states)
     )
     assert loaded.replay_buffer.size() == model.replay_buffer.size()
     loaded.learn(total_timesteps=100, reset_num_timesteps=False)
-    assert loaded.reward_heads[0].n_samples == 300
+    assert loaded.task_learner(0).head.n_samples == 300
 
 
 def test_mlp_policy_learns(source_transitions):
@@ -215,9 +216,9 @@ def test_multi_task_env_triggers_each_task_on_its_own():
     )
     model = TRLSD("LinearPolicy", env, seed=0)
     model.learn(total_timesteps=400)
-    assert sorted(model.reward_heads) == [0, 4, 20, 24]
+    assert sorted(model.task_learners) == [0, 4, 20, 24]
     assert all(model.policy_updates[task] >= 1 for task in (0, 4, 20, 24))
-    assert all(head.n_samples == 100 for head in model.reward_heads.values())
+    assert all(learner.head.n_samples == 100 for learner in model.task_learners.values())
 
 
 @pytest.mark.parametrize(
@@ -314,3 +315,21 @@ def test_known_head_needs_no_env_method_when_given_a_reward_function(source_tran
     model = make_model(source_transitions, reward_head="known", reward_fn=reward_fn)
     model.update_policy(0)
     assert calls and set(calls) == {0}
+
+
+def test_several_envs_feed_one_buffer_and_one_learner_per_task(source_transitions, tmp_path):
+    """n_envs=2: each env's step is a row of the one shared buffer and a sample of its task's head; the model
+    saves, loads and goes on learning from where it was."""
+    envs = make_vec_env(MAZE_ID, n_envs=2, env_kwargs={"task": 6}, seed=0)
+    model = TRLSD("LinearPolicy", envs, seed=0)
+    model.load_transitions(source_transitions, keep_rewards=False)
+    model.learn(total_timesteps=200)
+    n_source = len(source_transitions)
+    assert model.num_timesteps == 200 and model.replay_buffer.size() == n_source + 200
+    assert model.task_learner(6).head.n_samples == 200 and model.policy_updates[6] >= 2
+    model.save(tmp_path / "two_envs")
+    loaded = TRLSD.load(tmp_path / "two_envs", env=envs)
+    assert loaded.replay_buffer.size() == n_source + 200
+    loaded.learn(total_timesteps=100, reset_num_timesteps=False)
+    assert loaded.num_timesteps == 300 and loaded.task_learner(6).head.n_samples == 300
+    assert loaded.replay_buffer.size() == n_source + 300

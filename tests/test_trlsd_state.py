@@ -57,7 +57,7 @@ def test_a_loaded_model_has_int_task_keys_and_its_heads_samples(tmp_path):
     assert isinstance(loaded.task_learners[4], TaskLearner)
     states = np.random.default_rng(0).uniform(0, 5, size=(300, 2))
     np.testing.assert_array_equal(
-        loaded.reward_head_of(4).optimistic(states), model.reward_head_of(4).optimistic(states)
+        loaded.task_learner(4).head.optimistic(states), model.task_learner(4).head.optimistic(states)
     )
     assert loaded.replay_buffer.size() == 580
 
@@ -75,10 +75,10 @@ def test_the_zip_holds_no_env_and_no_closure(tmp_path):
     assert "reward_fn" not in data
     loaded = TRLSD.load(tmp_path / "known", env=gym.make(MAZE_ID, tasks="all"))
     states = np.array([[0.5, 0.5], [2.5, 2.5]])
-    np.testing.assert_array_equal(loaded.reward_head_of(0).estimate(states), [1.0, 0.0])
+    np.testing.assert_array_equal(loaded.task_learner(0).head.estimate(states), [1.0, 0.0])
     without_env = TRLSD.load(tmp_path / "known")
     with pytest.raises(ValueError, match="reward_fn"):
-        without_env.reward_head_of(0).estimate(states)
+        without_env.task_learner(0).head.estimate(states)
 
 
 def test_a_model_saved_without_its_rows_warns_at_learn_and_names_the_call(tmp_path):
@@ -119,7 +119,7 @@ def test_a_bad_online_transition_leaves_the_model_as_it_was_and_learning(source_
         model.replay_buffer.packed_rows(),
         model.num_timesteps,
         model.policy_updates,
-        model.reward_head_of(0).n_samples,
+        model.task_learner(0).head.n_samples,
     )
     with pytest.raises(ValueError, match=message):
         online_step(model, **step)
@@ -127,13 +127,13 @@ def test_a_bad_online_transition_leaves_the_model_as_it_was_and_learning(source_
         model.replay_buffer.packed_rows(),
         model.num_timesteps,
         model.policy_updates,
-        model.reward_head_of(0).n_samples,
+        model.task_learner(0).head.n_samples,
     )
     np.testing.assert_array_equal(after[0], before[0])
     assert after[1:] == before[1:]
     online_step(model, reward=1.0)
     model.update_policy(0)
-    assert model.reward_head_of(0).n_samples == 4 and np.isfinite(model.policy.theta.numpy()).all()
+    assert model.task_learner(0).head.n_samples == 4 and np.isfinite(model.policy.theta.numpy()).all()
 
 
 class RewardOnce(gym.Wrapper):
@@ -157,16 +157,16 @@ def test_an_env_returning_nan_inside_learn_raises_and_the_model_goes_on(source_t
     with pytest.raises(ValueError, match="reward"):
         model.learn(total_timesteps=100)
     assert model.replay_buffer.size() == len(source_transitions) + 29
-    assert model.reward_head_of(0).n_samples == 29
+    assert model.task_learner(0).head.n_samples == 29
     model.learn(total_timesteps=50, reset_num_timesteps=False)
-    assert model.reward_head_of(0).n_samples > 29 and np.isfinite(model.policy.theta.numpy()).all()
+    assert model.task_learner(0).head.n_samples > 29 and np.isfinite(model.policy.theta.numpy()).all()
 
 
 def test_the_policy_and_the_ridge_heads_share_one_feature_map():
     """One definition of Phi: TRLSD's rbf_per_dim reaches the policy and every ridge head alike."""
     model = TRLSD("LinearPolicy", gym.make(MAZE_ID, tasks="all"), rbf_per_dim=7, seed=0)
     assert model.policy.features is model.features and model.features.n_features == 49
-    assert model.reward_head_of(3).features is model.features
+    assert model.task_learner(3).head.features is model.features
     assert model.policy.theta.shape == (25, 4, 49)
 
 

@@ -1,6 +1,6 @@
 """
 The figures' runs in batches: each method's runs split into ``SOURCE_SETS`` batches of consecutive runs
-(one method, different tasks and seeds), stepped in lockstep (``sb3_trlsd.lockstep``) with TRLSD's own task
+(one method, different tasks and seeds), stepped in lockstep (``sb3_trlsd.experiments.lockstep``) with TRLSD's own task
 learners and Fitted-Q function; the runs of a transfer batch share one source set, drawn from
 ``source_seed(seed, b)``, so every method sees the same tasks, source sets and env seeds (under a protocol
 with ``source_sets="per_run"``, each run draws its own, from ``run_source_seed``). A run of a batch takes the
@@ -25,6 +25,7 @@ from sb3_trlsd.data import Transitions, collect_transitions
 from sb3_trlsd.experiments.backends import LOKY, Backend
 from sb3_trlsd.experiments.env_batches import env_batch
 from sb3_trlsd.experiments.jobs import run_jobs
+from sb3_trlsd.experiments.lockstep import Lockstep
 from sb3_trlsd.experiments.protocols import AS_BUILT, Protocol
 from sb3_trlsd.experiments.runner import (
     ONLINE_TRANSITIONS,
@@ -35,7 +36,6 @@ from sb3_trlsd.experiments.runner import (
     run_online,
     target_env,
 )
-from sb3_trlsd.lockstep import Lockstep
 from sb3_trlsd_envs import MAZE_ID, N_TASKS
 
 __all__ = [

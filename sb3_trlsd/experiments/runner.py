@@ -135,7 +135,7 @@ class RunRecord:
 
 def snapshot(model: TRLSD, task: int, step: int, trajectory: np.ndarray) -> Snapshot:
     """The reward estimate and greedy policy of ``task`` after ``step`` transitions, with a trajectory."""
-    estimate = model.reward_head_of(task).estimate(state_grid(SNAPSHOT_GRID))
+    estimate = model.task_learner(task).head.estimate(state_grid(SNAPSHOT_GRID))
     return Snapshot(
         step=step,
         reward_estimate=estimate.reshape(SNAPSHOT_GRID, SNAPSHOT_GRID),

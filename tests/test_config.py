@@ -95,9 +95,9 @@ def test_the_tabular_head_takes_a_user_discretisation_and_the_grid_by_default():
     """reward_head='tabular' on a 3-D Box: GridCells of cells_per_dim; or the user's cell_fn and n_cells."""
     env = gym.make(MAZE_ID)
     grid = TRLSD("LinearPolicy", env, reward_head="tabular", reward_head_kwargs={"cells_per_dim": 2})
-    head = grid.reward_head_of(0)
+    head = grid.task_learner(0).head
     assert isinstance(head, TabularRewardHead) and head.n_cells == 4 and isinstance(head.cell_fn, GridCells)
-    corners = TRLSD("LinearPolicy", env, reward_head="corners").reward_head_of(0)
+    corners = TRLSD("LinearPolicy", env, reward_head="corners").task_learner(0).head
     assert np.flatnonzero(corners.allowed).tolist() == [0, 4, 20, 24]
 
     def halves(states):
@@ -106,9 +106,11 @@ def test_the_tabular_head_takes_a_user_discretisation_and_the_grid_by_default():
     user = TRLSD(
         "LinearPolicy", env, reward_head="tabular", reward_head_kwargs={"cell_fn": halves, "n_cells": 2}
     )
-    user.reward_head_of(0).update(np.array([[1.0, 1.0], [4.0, 1.0], [4.5, 3.0]]), np.array([0.0, 1.0, 3.0]))
+    user.task_learner(0).head.update(
+        np.array([[1.0, 1.0], [4.0, 1.0], [4.5, 3.0]]), np.array([0.0, 1.0, 3.0])
+    )
     np.testing.assert_allclose(
-        user.reward_head_of(0).estimate(np.array([[0.5, 0.5], [3.0, 4.0]])), [0.0, 2.0]
+        user.task_learner(0).head.estimate(np.array([[0.5, 0.5], [3.0, 4.0]])), [0.0, 2.0]
     )
 
 
@@ -122,7 +124,7 @@ def test_the_known_head_checks_its_reward_fn_and_refits_as_the_buffer_grows():
     )
     model = TRLSD("LinearPolicy", env, reward_head="known", seed=0)
     model.learn(total_timesteps=400)
-    assert all(isinstance(head, KnownRewardHead) for head in model.reward_heads.values())
+    assert all(isinstance(learner.head, KnownRewardHead) for learner in model.task_learners.values())
     # Task 0 first fits on no row, then at 2, 4, 8, ... 256 rows; task 24 first fits on 150, then at 300.
     assert model.policy_updates[0] >= 7 and all(model.policy_updates[task] >= 2 for task in (4, 20, 24))
 

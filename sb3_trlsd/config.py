@@ -1,0 +1,381 @@
+"""TRLSD's settings as one typed object: checked when made, listed for TensorBoard, and what they build.
+
+``TRLSDConfig`` holds the settings of the learning itself (the reward heads, their optimism and similarity,
+the refit trigger, Fitted-Q's stopping and the feature map Phi), whoever learns with them: the ``TRLSD``
+algorithm, the runs of ``Engine`` stepped together, or the ``RelabellingReplayBuffer`` of another SB3
+algorithm. ``TRLSDConfig.builder`` turns them, for one env's spaces, into a ``LearnerBuilder``: the state box,
+the shared feature map, and a fresh ``TaskLearner`` (reward head and trigger) for any task.
+
+Features and similarities see states in normalised coordinates, the state box mapped to the unit cube:
+``sigma`` and ``rbf_sigma`` are fractions of the box (per dimension if wanted), so the defaults do not
+depend on an env's units and a scaled copy of an env learns as the original. On the paper's maze,
+(0, 5)^2, the defaults are its sigma = 0.2 and RBF width 0.2, exactly.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from gymnasium import spaces
+
+from sb3_trlsd.feature_maps import FEATURE_MAPS, FeatureMap, default_kernel_width, make_feature_map
+from sb3_trlsd.fqi import DEFAULT_TOL
+from sb3_trlsd.observations import state_space_of, task_count_of
+from sb3_trlsd.reward_heads import (
+    CONFIDENCE_BOUND_HEAD_NAMES,
+    REWARD_HEAD_NAMES,
+    SIMILARITIES,
+    RewardFn,
+    RewardHead,
+    make_reward_head,
+)
+from sb3_trlsd.task_learner import FIRST_FIT_RULES, TaskLearner
+
+__all__ = ["FEATURE_HEAD_NAMES", "HEAD_NAMES", "LearnerBuilder", "TRLSDConfig", "check_discount", "head_seed"]
+
+# The heads built by name: the paper's, and those with other confidence bounds.
+HEAD_NAMES = REWARD_HEAD_NAMES + CONFIDENCE_BOUND_HEAD_NAMES
+# The named heads that regress the reward on Phi, and so need the shared feature map (and hold a Gram matrix).
+FEATURE_HEAD_NAMES = ("ridge", "ridge_posterior", "thompson")
+# The named heads whose similarity is eq. 6 on states or eq. 7 on features, of width ``sigma``.
+SIMILARITY_HEAD_NAMES = ("ridge", "bernstein")
+FEATURES_SIMILARITY_SIGMA = 0.2  # eq. 7 compares feature vectors, whose scale is the features' own
+
+Widths = float | Sequence[float] | None
+Bounds = tuple[Sequence[float], Sequence[float]]
+
+
+def _require(condition: bool, name: str, meaning: str, value: object) -> None:
+    if not condition:
+        raise ValueError(f"{name} must be {meaning}, got {value!r}")
+
+
+def _finite(name: str, value: object) -> float:
+    if not (isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)):
+        raise ValueError(f"{name} must be a finite number, got {value!r}")
+    _require(math.isfinite(value), name, "a finite number", value)
+    return float(value)
+
+
+def _integer(name: str, value: object, minimum: int, none_allowed: bool = False) -> None:
+    ok = isinstance(value, (int, np.integer)) and not isinstance(value, bool) and value >= minimum
+    meaning = f"an integer >= {minimum}" + (" or None" if none_allowed else "")
+    _require(ok or (none_allowed and value is None), name, meaning, value)
+
+
+def _widths(name: str, value: Widths, meaning: str) -> None:
+    array = np.asarray(value if value is not None else 1.0)
+    ok = array.dtype.kind in "fiu" and array.ndim <= 1 and array.size and np.all(np.isfinite(array))
+    _require(
+        bool(ok) and bool(np.all(array > 0)),
+        name,
+        f"None or a width > 0 (or one per dimension): {meaning}",
+        value,
+    )
+
+
+def check_discount(gamma: float) -> None:
+    """
+    Reject a discount factor outside (0, 1), naming it.
+
+    :raises ValueError: for NaN, infinite or out-of-range values
+    """
+    _require(0 < _finite("gamma", gamma) < 1, "gamma", "in (0, 1)", gamma)
+
+
+def head_seed(seed: int | None, task: int) -> int | None:
+    """
+    The seed of a named ``"thompson"`` head's draws: one per run and task, derived from the run's seed so that
+    every task of every run draws its own normals, reproducibly (None, fresh entropy, without a seed).
+
+    :param seed: the run's seed (a model's ``seed``)
+    :param task: the task
+    :return: an integer >= 0, or None
+    """
+    if seed is None:
+        return None
+    return int(np.random.SeedSequence([int(seed) % 2**64, int(task), 3]).generate_state(1)[0])
+
+
+@dataclass(frozen=True)
+class TRLSDConfig:
+    """
+    The settings of TRLSD's learning (see ``TRLSD`` for each one's meaning and where its default comes from).
+    Bad values raise a ``ValueError`` naming the setting when the config is made.
+
+    :param reward_head: a name of ``HEAD_NAMES`` or a ``RewardHead`` copied for each task
+    :param kappa: optimism (eq. 9, 10); 0 is the non-optimistic method
+    :param sigma: width of the similarity in W (eq. 8): for eq. 6 a fraction of the state box, one or one per
+        dimension (None: ``default_kernel_width(d)``); for eq. 7 a distance between feature vectors
+        (None: 0.2)
+    :param similarity: ``"state"`` (eq. 6) or ``"features"`` (eq. 7)
+    :param update_ratio: refit a task when the CI at an encountered state has been divided by this (> 1)
+    :param first_fit: when a task's Q is first fitted, one of ``FIRST_FIT_RULES``
+    :param fqi_max_iterations: cap on Fitted-Q iterations per refit (None: the Q-function's own default)
+    :param fqi_tol: Fitted-Q stops when the parameters move by less than this, relative to their scale
+    :param feature_map: Phi: a name of ``FEATURE_MAPS`` or a ``FeatureMap``
+    :param rbf_per_dim: RBF centres per state dimension of the grid
+    :param rbf_sigma: width of the features, a fraction of the state box (None: the feature map's default)
+    :param fourier_features: the number of Fourier features (None: the feature map's default)
+    :param state_bounds: ``(low, high)`` of the states for an unbounded Box (None: the Box's, finite)
+    :param reward_head_kwargs: extra arguments of the named reward heads
+    """
+
+    reward_head: str | RewardHead = "ridge"
+    kappa: float = 0.1
+    sigma: Widths = None
+    similarity: str = "state"
+    update_ratio: float = 2.0
+    first_fit: str = "first_step"
+    fqi_max_iterations: int | None = None
+    fqi_tol: float = DEFAULT_TOL
+    feature_map: str | FeatureMap = "auto"
+    rbf_per_dim: int = 5
+    rbf_sigma: Widths = None
+    fourier_features: int | None = None
+    state_bounds: Bounds | None = None
+    reward_head_kwargs: Mapping[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        # A copy: the caller's dict is theirs (and a frozen config is not changed through it).
+        object.__setattr__(self, "reward_head_kwargs", dict(self.reward_head_kwargs or {}))
+        if not isinstance(self.reward_head, RewardHead) and self.reward_head not in HEAD_NAMES:
+            raise ValueError(
+                f"reward_head must be one of {list(HEAD_NAMES)} or a RewardHead instance, "
+                f"got {self.reward_head!r}"
+            )
+        _require(
+            _finite("kappa", self.kappa) >= 0, "kappa", ">= 0 (0 is the non-optimistic method)", self.kappa
+        )
+        _widths("sigma", self.sigma, "the similarity's, a fraction of the state box")
+        _widths("rbf_sigma", self.rbf_sigma, "the features', a fraction of the state box")
+        if not isinstance(self.feature_map, FeatureMap) and self.feature_map not in FEATURE_MAPS:
+            raise ValueError(
+                f"feature_map must be one of {list(FEATURE_MAPS)} or a FeatureMap, got {self.feature_map!r}"
+            )
+        _integer("fourier_features", self.fourier_features, 1, none_allowed=True)
+        _require(
+            _finite("update_ratio", self.update_ratio) > 1,
+            "update_ratio",
+            "> 1 (the CI must shrink to trigger a refit)",
+            self.update_ratio,
+        )
+        _require(
+            _finite("fqi_tol", self.fqi_tol) >= 0, "fqi_tol", ">= 0 (a relative tolerance)", self.fqi_tol
+        )
+        _integer("rbf_per_dim", self.rbf_per_dim, 1)
+        _integer("fqi_max_iterations", self.fqi_max_iterations, 1, none_allowed=True)
+        if self.similarity not in SIMILARITIES:
+            raise ValueError(f"similarity must be one of {list(SIMILARITIES)}, got {self.similarity!r}")
+        if self.reward_head == "bernstein" and self.similarity != "state":
+            raise ValueError(
+                f"similarity must be 'state' with reward_head='bernstein' (its weights are eq. 6's), "
+                f"got {self.similarity!r}"
+            )
+        if self.first_fit not in FIRST_FIT_RULES:
+            raise ValueError(
+                f"first_fit must be one of {list(FIRST_FIT_RULES)} (when a task's Q is first fitted), "
+                f"got {self.first_fit!r}"
+            )
+
+    @property
+    def head_name(self) -> str:
+        """The reward head's name, or its class name for a ``RewardHead`` instance."""
+        return self.reward_head if isinstance(self.reward_head, str) else type(self.reward_head).__name__
+
+    def hyperparameters(self) -> dict[str, int | float | str | bool]:
+        """The settings as TensorBoard's HParams tab shows them (numbers, or their text)."""
+        settings = {
+            "reward_head": self.head_name,
+            "kappa": self.kappa,
+            "sigma": self.sigma,
+            "similarity": self.similarity,
+            "update_ratio": self.update_ratio,
+            "first_fit": self.first_fit,
+            "fqi_max_iterations": self.fqi_max_iterations,
+            "fqi_tol": self.fqi_tol,
+            "feature_map": self.feature_map
+            if isinstance(self.feature_map, str)
+            else type(self.feature_map).__name__,
+            "rbf_per_dim": self.rbf_per_dim,
+            "rbf_sigma": self.rbf_sigma,
+        }
+        return {
+            key: value if isinstance(value, (int, float, bool)) else str(value)
+            for key, value in settings.items()
+        }
+
+    def state_box(self, observation_space: spaces.Space) -> tuple[np.ndarray, np.ndarray]:
+        """
+        The box [low, high] normalised coordinates are taken in: ``state_bounds`` if given, else the state
+        Box's bounds, which must then be finite.
+
+        :param observation_space: the env's observation space (a state Box, or a ``{"state", "task"}`` Dict)
+        :return: low and high, (d,) float64
+        :raises ValueError: naming the unbounded dimensions and how to bound them
+        """
+        space = state_space_of(observation_space)
+        if self.state_bounds is not None:
+            try:
+                low, high = (np.asarray(bound, dtype=np.float64) for bound in self.state_bounds)
+            except (TypeError, ValueError) as error:
+                raise ValueError(f"state_bounds must be (low, high), got {self.state_bounds!r}") from error
+            if (
+                low.shape != space.shape
+                or high.shape != space.shape
+                or not np.all(np.isfinite(low) & np.isfinite(high))
+            ):
+                raise ValueError(
+                    f"state_bounds must be (low, high), finite, of shape {space.shape} each, "
+                    f"got {self.state_bounds!r}"
+                )
+            if not np.all(low < high):
+                raise ValueError(
+                    f"state_bounds must have low < high in every dimension, got {self.state_bounds!r}"
+                )
+            return low, high
+        low, high = space.low.astype(np.float64), space.high.astype(np.float64)
+        unbounded = np.flatnonzero(~(np.isfinite(low) & np.isfinite(high)))
+        if len(unbounded):
+            raise ValueError(
+                f"the state Box is unbounded in dimension(s) {unbounded.tolist()} (low {low[unbounded]}, "
+                f"high {high[unbounded]}), and TRLSD's features and similarities are taken relative to the "
+                "box: give state_bounds=(low, high) with the range the states really take, or wrap the env "
+                "so that its observation space is finite (gymnasium.wrappers.TransformObservation with "
+                "np.clip and a bounded Box, then RescaleObservation if wanted)"
+            )
+        return low, high
+
+    def similarity_width(self, low: np.ndarray, high: np.ndarray) -> float | np.ndarray:
+        """
+        The width of the similarity of the ridge (and Bernstein) heads in the units it compares: for eq. 6
+        (``"state"``) ``sigma`` (default ``default_kernel_width(d)``) times the box's size per dimension; for
+        eq. 7 (``"features"``) ``sigma`` as given (default 0.2).
+        """
+        if self.similarity == "features":
+            return FEATURES_SIMILARITY_SIGMA if self.sigma is None else float(self.sigma)  # type: ignore[arg-type]
+        sigma = (
+            default_kernel_width(len(low)) if self.sigma is None else np.asarray(self.sigma, dtype=np.float64)
+        )
+        return sigma * (high - low)
+
+    def heads_use_features(self) -> bool:
+        """Whether the named reward head regresses on the shared feature map Phi."""
+        return isinstance(self.reward_head, str) and self.reward_head in FEATURE_HEAD_NAMES
+
+    def builder(
+        self,
+        observation_space: spaces.Space,
+        n_actions: int,
+        linear_q: bool,
+        seed: int | None = None,
+    ) -> LearnerBuilder:
+        """
+        What these settings build for an env of these spaces: its state box, the feature map Phi shared by
+        the linear Q and the feature heads (None when neither uses one), and its task learners.
+
+        :param observation_space: the env's observation space
+        :param n_actions: the env's actions (0 when no Q is fitted on Phi: its memory is then the heads')
+        :param linear_q: whether a linear Q-function is fitted on Phi
+        :param seed: the run's seed: of the Fourier features and of the Thompson heads' draws
+        :return: the builder
+        """
+        low, high = self.state_box(observation_space)
+        features: FeatureMap | None = None
+        if linear_q or self.heads_use_features():
+            features = (
+                self.feature_map
+                if isinstance(self.feature_map, FeatureMap)
+                else make_feature_map(
+                    self.feature_map,
+                    low,
+                    high,
+                    rbf_per_dim=self.rbf_per_dim,
+                    rbf_sigma=self.rbf_sigma,
+                    fourier_features=self.fourier_features,
+                    seed=0 if seed is None else seed,
+                    n_actions=n_actions if linear_q else 0,
+                    n_tasks=task_count_of(observation_space) if self.heads_use_features() else 0,
+                )
+            )
+        return LearnerBuilder(self, low, high, features, seed)
+
+
+@dataclass(frozen=True)
+class LearnerBuilder:
+    """
+    What a ``TRLSDConfig`` builds for one env: its state box, the shared feature map, and task learners.
+
+    :param config: the settings
+    :param low: the state box's lower corner, (d,)
+    :param high: its upper corner, (d,)
+    :param features: Phi, shared by the linear Q and the feature heads (None when neither uses one)
+    :param seed: the run's seed (of the Thompson heads' draws, unless ``reward_head_kwargs`` gives theirs)
+    """
+
+    config: TRLSDConfig
+    low: np.ndarray
+    high: np.ndarray
+    features: FeatureMap | None
+    seed: int | None = None
+
+    def reward_head(
+        self, task: int, reward_fn: RewardFn | None = None, seed: int | None = None
+    ) -> RewardHead:
+        """
+        A reward head for ``task`` with no samples: a copy of the config's ``RewardHead`` instance, or the
+        named head with kappa, the shared features, the similarity's width and the head kwargs.
+
+        :param task: the task
+        :param reward_fn: the expected reward ``reward_fn(states, task)`` of the ``"known"`` head
+        :param seed: the run's seed (None: the builder's), of a ``"thompson"`` head's draws
+        :return: the head
+        :raises ValueError: for the ``"known"`` head without a ``reward_fn``
+        """
+        config = self.config
+        if isinstance(config.reward_head, RewardHead):
+            return copy.deepcopy(config.reward_head)
+        kwargs = dict(config.reward_head_kwargs)
+        if config.reward_head == "known":
+            if reward_fn is None:
+                raise ValueError(
+                    "the 'known' reward_head needs reward_fn=reward_fn(states, task) -> expected rewards "
+                    "(n,), or an env whose unwrapped object has expected_reward(states, task)"
+                )
+            return make_reward_head("known", task=task, reward_fn=reward_fn, **kwargs)
+        if config.reward_head == "thompson":
+            kwargs.setdefault("seed", head_seed(self.seed if seed is None else seed, task))
+        return make_reward_head(
+            config.reward_head,
+            task=task,
+            features=self.features,
+            state_space=spaces.Box(self.low, self.high, dtype=np.float64),
+            kappa=config.kappa,
+            sigma=config.similarity_width(self.low, self.high)  # type: ignore[arg-type]
+            if config.reward_head in SIMILARITY_HEAD_NAMES
+            else 0.2,
+            similarity=config.similarity,
+            **kwargs,
+        )
+
+    def task_learner(
+        self, task: int, reward_fn: RewardFn | None = None, seed: int | None = None
+    ) -> TaskLearner:
+        """
+        The learning state of ``task`` with no samples: its reward head (``reward_head``), the config's
+        ``update_ratio`` and ``first_fit``.
+
+        :param task: the task
+        :param reward_fn: see ``reward_head``
+        :param seed: see ``reward_head``
+        :return: the learner
+        """
+        config = self.config
+        return TaskLearner(
+            task, self.reward_head(task, reward_fn, seed), config.update_ratio, first_fit=config.first_fit
+        )

@@ -1,0 +1,223 @@
+"""Algorithm 1 online, over R runs at once: the one copy of TRLSD's control logic.
+
+An ``Engine`` holds R runs, each with its shared buffer and its task learners (reward head, refit trigger,
+relabelling), and the Q-functions of every run and task (``q_functions.py``). Whoever drives it steps envs
+and calls, for a batch of transitions, each with its run:
+
+- ``act(runs, states, tasks)``: a task's Q is fitted before its first action (under
+  ``first_fit="first_step"``), then the greedy action argmax_a Q_run,tau(s, a) (eq. 3);
+- ``observe(runs, ...)``: each transition goes to its run's buffer (at once, or held back until the run's
+  next refit) and its start state and reward to its task's learner, whose trigger may fire (section 3);
+- ``refit_due()``: the tasks whose trigger fired are refitted by Fitted-Q Iteration on their run's buffer
+  relabelled with their reward proxy R~ (Algorithm 1, psi), all in one call of the Q-functions' fit.
+
+``TRLSD`` drives it with one run (its ``n_envs`` envs all feeding it) from SB3's rollout and from
+``act``/``add_online_transition``; the experiments drive R runs of one method in lockstep. A run of a batch
+takes the actions and refits of a ``TRLSD`` model driven alone with the same seed and source set, up to the
+order of floating-point sums.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from sb3_trlsd.buffers import SharedDynamicsReplayBuffer
+from sb3_trlsd.data import Transitions
+from sb3_trlsd.fqi import FQIResult
+from sb3_trlsd.q_functions import QFunctions
+from sb3_trlsd.task_learner import TaskLearner
+
+__all__ = ["Engine", "NewLearner", "RefitHook", "Run"]
+
+# (run, task) -> a fresh learning state of that task in that run
+NewLearner = Callable[[int, int], TaskLearner]
+# Called after each refit with the run, the task's learner, the fit's result and the rewards it fitted on.
+RefitHook = Callable[[int, TaskLearner, FQIResult, np.ndarray], None]
+
+
+@dataclass
+class Run:
+    """
+    One run's learning state apart from its Q-functions.
+
+    :param buffer: the run's shared buffer, every transition of every task
+    :param learners: its task learners by task, created the first time a task is met
+    :param pending: online transitions not yet written to the buffer (rows are read only at refits, so the
+        engine writes a batch of them at once), as (state, action, reward, next state, task, truncated,
+        terminated)
+    """
+
+    buffer: SharedDynamicsReplayBuffer
+    learners: dict[int, TaskLearner] = field(default_factory=dict)
+    pending: list[tuple] = field(default_factory=list)
+
+    @property
+    def n_rows(self) -> int:
+        """The run's transitions, written or held back."""
+        return self.buffer.size() + len(self.pending)
+
+    def write_pending(self) -> None:
+        """Write the transitions held back to the buffer, in their order."""
+        if not self.pending:
+            return
+        states, actions, rewards, next_states, tasks, truncated, terminated = map(
+            np.array, zip(*self.pending, strict=True)
+        )
+        self.buffer.add_transitions(
+            Transitions(states, actions, next_states, rewards, tasks, truncated, terminated),
+            keep_rewards=True,
+        )
+        self.pending.clear()
+
+
+class Engine:
+    """
+    Algorithm 1 over R runs (see the module's docstring).
+
+    :param runs: the runs
+    :param q_functions: the Q-function of every run and task
+    :param new_learner: makes the learning state of a task the first time its run meets it
+    :param gamma: discount factor of the Fitted-Q refits
+    :param max_iterations: cap on the Fitted-Q iterations of a refit (None: the Q-functions' default)
+    :param tol: relative stopping tolerance of the Fitted-Q iterations
+    :param on_refit: called after each refit (e.g. to log it)
+    """
+
+    def __init__(
+        self,
+        runs: Sequence[Run],
+        q_functions: QFunctions,
+        new_learner: NewLearner,
+        gamma: float,
+        max_iterations: int | None,
+        tol: float,
+        on_refit: RefitHook | None = None,
+    ):
+        self.runs = list(runs)
+        self.q_functions = q_functions
+        self.new_learner = new_learner
+        self.gamma = gamma
+        self.max_iterations = q_functions.default_max_iterations if max_iterations is None else max_iterations
+        self.tol = tol
+        self.on_refit = on_refit
+
+    def learner(self, run: int, task: int) -> TaskLearner:
+        """The learning state of ``task`` in ``run``, created (no samples) the first time it is asked for."""
+        learners = self.runs[run].learners
+        task = int(task)
+        if task not in learners:
+            learners[task] = self.new_learner(run, task)
+        return learners[task]
+
+    def fit_first(self, runs: np.ndarray, tasks: np.ndarray) -> list[tuple[int, int]]:
+        """
+        Fit the tasks about to act that must be fitted before acting (their first step under
+        ``first_fit="first_step"``).
+
+        :param runs: the run of each state about to act, (n,)
+        :param tasks: its task, (n,)
+        :return: the (run, task) pairs fitted, in order
+        """
+        pairs = sorted({(int(run), int(task)) for run, task in zip(runs, tasks, strict=True)})
+        due = [(run, task) for run, task in pairs if self.learner(run, task).fit_before_acting]
+        self.refit(due)
+        return due
+
+    def greedy(self, runs: np.ndarray, states: np.ndarray, tasks: np.ndarray) -> np.ndarray:
+        """
+        The greedy action of each state under its run's Q of its task: argmax_a Q(s, a) (eq. 3).
+
+        :return: actions (n,)
+        """
+        return self.q_functions.q_values(runs, states, tasks).argmax(axis=1)
+
+    def act(self, runs: np.ndarray, states: np.ndarray, tasks: np.ndarray) -> np.ndarray:
+        """
+        The actions TRLSD takes: the tasks that must be are fitted first (``fit_first``), then ``greedy``.
+
+        :param runs: the run of each state, (n,)
+        :param states: (n, d)
+        :param tasks: the task of each state, (n,)
+        :return: actions (n,)
+        """
+        self.fit_first(runs, tasks)
+        return self.greedy(runs, states, tasks)
+
+    def observe(
+        self,
+        runs: np.ndarray,
+        states: np.ndarray,
+        actions: np.ndarray,
+        rewards: np.ndarray,
+        next_states: np.ndarray,
+        tasks: np.ndarray,
+        terminated: np.ndarray,
+        truncated: np.ndarray,
+        store: bool = True,
+    ) -> None:
+        """
+        Take in transitions, each of its run: store it (unless the caller did), and feed its task's learner
+        the reward at its start state (which may make the task due for a refit).
+
+        :param runs: the run of each transition, (n,)
+        :param states: start states, (n, d)
+        :param actions: (n,)
+        :param rewards: (n,); stored, and learnt from, in float32 as an SB3 buffer stores them
+        :param next_states: (n, d)
+        :param tasks: (n,)
+        :param terminated: whether each next state is absorbing, (n,)
+        :param truncated: whether each trajectory was cut there, (n,)
+        :param store: hold the transitions for their run's buffer (False: the caller stored them already)
+        """
+        rewards = np.asarray(rewards).astype(np.float32).astype(np.float64)
+        for i, run_index in enumerate(runs):
+            run = self.runs[run_index]
+            if store:
+                run.pending.append(
+                    (states[i], actions[i], rewards[i], next_states[i], tasks[i], truncated[i], terminated[i])
+                )
+            self.learner(run_index, tasks[i]).observe(states[i], float(rewards[i]), n_rows=run.n_rows)
+
+    def due(self) -> list[tuple[int, int]]:
+        """The (run, task) pairs whose refit is due, in order."""
+        return [
+            (index, task)
+            for index, run in enumerate(self.runs)
+            for task, learner in sorted(run.learners.items())
+            if learner.due
+        ]
+
+    def refit_due(self) -> list[tuple[int, int]]:
+        """
+        Refit every task whose trigger fired (``due``).
+
+        :return: the (run, task) pairs refitted, in order
+        """
+        pairs = self.due()
+        self.refit(pairs)
+        return pairs
+
+    def refit(self, pairs: Sequence[tuple[int, int]]) -> list[FQIResult]:
+        """
+        Refit the Q of each ``(run, task)`` now: its run's buffer relabelled with the task's reward proxy R~
+        (Algorithm 1, psi), then Fitted-Q Iteration from the current parameters, all pairs in one call.
+
+        :param pairs: the (run, task) pairs
+        :return: the fit of each pair
+        """
+        if not pairs:
+            return []
+        for run in sorted({run for run, _ in pairs}):
+            self.runs[run].write_pending()
+        buffers = [run.buffer for run in self.runs]
+        rewards = [self.learner(run, task).relabelled_rewards(buffers[run]) for run, task in pairs]
+        results = self.q_functions.fit(pairs, buffers, rewards, self.gamma, self.max_iterations, self.tol)
+        for (run, task), result, task_rewards in zip(pairs, results, rewards, strict=True):
+            learner = self.learner(run, task)
+            learner.refitted(n_rows=self.runs[run].n_rows)
+            if self.on_refit is not None:
+                self.on_refit(run, learner, result, task_rewards)
+        return results

@@ -1,0 +1,111 @@
+"""
+One engine, three callers: SB3's ``learn``, ``act``/``add_online_transition`` from a loop of one's own, and a
+batch of R runs stepped in lockstep take the same actions and refits on seeded runs.
+
+What is compared, and why it is enough: the actions of every step and the step (and task) of every refit.
+The refits of a run follow from its trigger, which reads its reward head, which reads the states its actions
+led to; so equal actions and refit steps mean the run went through the same states, samples and refits.
+The batched fit adds the shared and own rows' sums in another order than a fit of the run alone, so theta
+agrees to rounding (~1e-7 relative, float32 rows), not bit for bit; an action is an argmax, which rounding
+changes only where two Q-values tie within it, which these seeded cases do not meet.
+"""
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+from sb3_trlsd import TRLSD, collect_transitions
+from sb3_trlsd.experiments.env_batches import env_batch
+from sb3_trlsd.experiments.lockstep import Lockstep
+from sb3_trlsd.experiments.runner import Method
+from sb3_trlsd_envs import FOUR_ROOMS_ID, MAZE_ID
+
+Refits = list[tuple[int, int]]
+
+
+def recording_refits(model: TRLSD) -> Refits:
+    """The (step, task) of each refit of ``model`` from now on, as ``LockstepRecord`` counts steps: a first
+    fit before the action of step t at t, a refit after the transition of step t at t + 1."""
+    refits: Refits = []
+    log_refit = model.engine.on_refit
+
+    def record(run, learner, result, rewards):
+        refits.append((model.num_timesteps, learner.task))
+        if log_refit is not None:
+            log_refit(run, learner, result, rewards)
+
+    model.engine.on_refit = record
+    return refits
+
+
+def by_learn(model: TRLSD, n_steps: int) -> tuple[np.ndarray, Refits]:
+    """SB3's rollout: the actions stored in the buffer, and the refits."""
+    refits = recording_refits(model)
+    n_before = model.replay_buffer.size()
+    model.learn(n_steps)
+    return model.replay_buffer.transitions().actions[n_before:], refits
+
+
+def by_act(model: TRLSD, env: gym.Env, n_steps: int, seed: int) -> tuple[np.ndarray, Refits]:
+    """A loop of one's own through ``act`` and ``add_online_transition``."""
+    refits = recording_refits(model)
+    actions = []
+    obs, _ = env.reset(seed=seed)
+    for _ in range(n_steps):
+        action = model.act(obs)
+        actions.append(action)
+        next_obs, reward, terminated, truncated, _ = env.step(action)
+        model.add_online_transition(obs, action, float(reward), next_obs, terminated, truncated)
+        obs = env.reset()[0] if terminated or truncated else next_obs
+    return np.array(actions), refits
+
+
+@pytest.mark.parametrize(
+    "method",
+    [
+        Method("optimistic ridge"),
+        Method("tabular", reward_head="tabular", update_ratio=1.2),
+        Method("kappa 0", kappa=0.0),
+        Method("features similarity", similarity="features"),
+        Method("known", reward_head="known"),
+        Method("no transfer", transfer=False),
+        Method("ridge posterior", reward_head="ridge_posterior", kappa=0.3),
+        Method("thompson", reward_head="thompson", kappa=0.3),  # each run draws from its own seed
+        Method("bernstein", reward_head="bernstein", kappa=0.03, reward_head_kwargs={"reward_range": 0.5}),
+    ],
+    ids=lambda method: method.label,
+)
+def test_learn_act_and_a_batch_take_the_same_actions_and_refits(method):
+    tasks, seeds, n_source, n_steps = (4, 20), (30, 32), 1_500, 200
+    source = collect_transitions(gym.make(MAZE_ID, task=0), n_source, seed=99) if method.transfer else None
+    envs = [gym.make(MAZE_ID, task=task) for task in tasks]
+    lockstep = Lockstep(method.make_model(envs[0], seeds[0]), env_batch(envs), len(envs), source, n_steps)
+    records = lockstep.run(seeds)
+
+    for task, seed, record in zip(tasks, seeds, records, strict=True):
+        followed = []
+        for caller in ("learn", "act"):
+            env = gym.make(MAZE_ID, task=task)
+            model = method.make_model(env, seed)
+            if source is not None:
+                model.load_transitions(source, keep_rewards=False)
+            followed.append(
+                by_learn(model, n_steps) if caller == "learn" else by_act(model, env, n_steps, seed)
+            )
+        for actions, refits in followed:
+            np.testing.assert_array_equal(record.actions, actions)
+            assert record.refit_steps == refits and refits[0] == (0, task)
+    if method.reward_head != "known":  # the known head refits when the buffer doubles: not within 200 steps
+        assert all(len(record.refit_steps) > 5 for record in records)  # the triggers fired, and were compared
+
+
+def test_a_batch_on_another_family_steps_its_envs_one_by_one_with_the_same_result():
+    """The four rooms through a generic env batch: the actions and refits of each run driven alone."""
+    seeds, n_steps = (1, 2), 120
+    envs = [gym.make(FOUR_ROOMS_ID, task=task) for task in (0, 3)]
+    lockstep = Lockstep(TRLSD("LinearPolicy", envs[0], seed=seeds[0]), env_batch(envs), 2, None, n_steps)
+    for env, seed, record in zip(envs, seeds, lockstep.run(seeds), strict=True):
+        alone_env = gym.make(FOUR_ROOMS_ID, task=env.unwrapped.task)
+        actions, refits = by_act(TRLSD("LinearPolicy", alone_env, seed=seed), alone_env, n_steps, seed)
+        np.testing.assert_array_equal(record.actions, actions)
+        assert record.refit_steps == refits
