@@ -1,0 +1,156 @@
+"""The MO-Gymnasium suite (``experiments/mo_suite``): families, their envs, one small cell end to end."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+pytest.importorskip("mo_gymnasium")
+
+from sb3_trlsd.cli import main
+from sb3_trlsd.experiments.mo_suite.families import (
+    FAMILIES,
+    available,
+    collect_source,
+    family_weights,
+    make_env,
+    reward_bound,
+    weight_split,
+)
+from sb3_trlsd.experiments.mo_suite.peers import METHODS, run_method
+from sb3_trlsd.experiments.mo_suite.suite import run_suite
+
+GRID_FAMILIES = ["deep-sea-treasure-v0", "resource-gathering-v0", "four-room-v0"]
+
+
+@pytest.mark.parametrize("name", list(FAMILIES))
+def test_weight_splits_are_disjoint_seeded_and_on_the_simplex(name):
+    """Source, tuning and evaluation weights share no vector (a target seen as a source would leak), are
+    the same at every call (runs could not be compared otherwise) and are convex combinations."""
+    family = FAMILIES[name]
+    if not available(family):
+        pytest.skip(f"{name} needs {family.requires}")
+    split = weight_split(family)
+    rows = {tuple(np.round(w, 12)) for part in (split.source, split.tuning, split.evaluation) for w in part}
+    assert len(rows) == family.n_tasks
+    assert (
+        len(split.evaluation) == family.n_evaluation_weights and len(split.source) == family.n_source_weights
+    )
+    np.testing.assert_array_equal(family_weights(family), family_weights(family))
+    np.testing.assert_allclose(family_weights(family).sum(axis=1), 1.0)
+    assert np.all(family_weights(family) >= 0)
+    tasks = [set(family.tasks_of(s).tolist()) for s in ("source", "tuning", "evaluation")]
+    assert set.union(*tasks) == set(range(family.n_tasks)) and sum(map(len, tasks)) == family.n_tasks
+
+
+@pytest.mark.parametrize("name", ["deep-sea-treasure-v0", "minecart-v0", "mo-mountaincar-v0", "four-room-v0"])
+def test_scalar_reward_is_the_task_weights_times_the_reward_vector(name):
+    """The env pays w_task . r_vec, with the vector in info: a mix-up of tasks or weights would show, as
+    would a reward taken from another objective; the state is a float vector in the declared Box's shape."""
+    family = FAMILIES[name]
+    task = int(family.tasks_of("evaluation")[3])
+    env = make_env(family, task)
+    obs, _ = env.reset(seed=0)
+    rng = np.random.default_rng(0)
+    vectors = []
+    for _ in range(200):
+        obs, reward, terminated, truncated, info = env.step(int(rng.integers(env.action_space.n)))
+        assert obs["task"] == task and obs["state"].dtype == np.float64
+        assert obs["state"].shape == env.observation_space["state"].shape
+        assert reward == pytest.approx(float(family_weights(family)[task] @ info["vector_reward"]))
+        vectors.append(info["vector_reward"])
+        if terminated or truncated:
+            obs, _ = env.reset()
+    assert np.any(np.asarray(vectors) != 0)
+
+
+@pytest.mark.parametrize("name", GRID_FAMILIES)
+def test_family_bounds_hold_every_source_state(name):
+    """The state bounds given to TRLSD contain the states the envs really take (narrower bounds would put
+    states outside the features' box)."""
+    family = FAMILIES[name]
+    data = collect_source(family, 3_000, seed=1).transitions
+    low, high = (np.asarray(b) for b in family.state_bounds)
+    assert np.all(data.states >= low) and np.all(data.states <= high)
+
+
+def test_source_set_is_split_over_the_source_weights_with_their_rewards():
+    """Each source weight collects its share, rewards scalarised by its own weights, the vector kept; the
+    same seed gives the same set (runs would not be reproducible otherwise)."""
+    family = FAMILIES["deep-sea-treasure-v0"]
+    source = collect_source(family, 1_000, seed=3)
+    data = source.transitions
+    assert len(data) == 1_000 and source.vector_rewards.shape == (1_000, 2)
+    assert set(np.unique(data.tasks).tolist()) == set(family.tasks_of("source").tolist())
+    weights = family_weights(family)[data.tasks]
+    np.testing.assert_allclose(data.rewards, np.sum(weights * source.vector_rewards, axis=1))
+    again = collect_source(family, 1_000, seed=3)
+    np.testing.assert_array_equal(data.states, again.transitions.states)
+    # every share ends with a reset, so no transition bootstraps into the next share's first state
+    assert data.truncations[np.flatnonzero(np.diff(data.tasks))].all()
+
+
+def test_reward_bound_is_the_largest_scalarised_reward():
+    """The cap of the relabelled rewards: w . r_vec at its best corner of the reward box."""
+    family = FAMILIES["deep-sea-treasure-v0"]
+    env = make_env(family, 0)
+    w = np.array([0.25, 0.75])
+    assert reward_bound(env.reward_space, w) == pytest.approx(0.25 * 23.7 - 0.75, rel=1e-6)
+
+
+@pytest.mark.parametrize("method", list(METHODS))
+def test_every_method_runs_its_budget_on_the_targets_rewards(method):
+    """Each method makes exactly the online budget's steps and is scored on the target's scalar rewards
+    (bounded by the reward box), from a small source set."""
+    family = FAMILIES["deep-sea-treasure-v0"]
+    task = int(family.tasks_of("evaluation")[0])
+    source = collect_source(family, 500, seed=0)
+    result = run_method(method, family, task, seed=0, source=source, n_online=120)
+    env = make_env(family, task)
+    assert result.rewards.shape == (120,)
+    assert np.all(result.rewards <= reward_bound(env.reward_space, family_weights(family)[task]) + 1e-9)
+    assert result.seconds >= result.online_seconds > 0
+
+
+def test_a_small_suite_cell_writes_its_csv_json_and_png(tmp_path):
+    """One family, two methods, two runs through the command line: the CSV has a row per run, the JSON the
+    aggregates with an interval around the mean, and the PNG is written."""
+    status = main(
+        [
+            "benchmark-suite",
+            "deep-sea-treasure-v0",
+            "--runs",
+            "2",
+            "--workers",
+            "1",
+            "--methods",
+            "random",
+            "trlsd",
+            "--source",
+            "500",
+            "--online",
+            "60",
+            "--out",
+            str(tmp_path),
+            "--no-cache",
+        ]
+    )
+    assert status == 0
+    name = tmp_path / "mo_suite_deep-sea-treasure-v0"
+    rows = name.with_suffix(".csv").read_text().strip().splitlines()
+    assert len(rows) == 1 + 2 * 2 and rows[0].startswith("method,run,task")
+    data = json.loads(name.with_suffix(".json").read_text())
+    assert set(data["results"]) == {"random", "trlsd"}
+    for entry in data["results"].values():
+        low, high = entry["ci95"]
+        assert low <= entry["score"]["mean"] <= high and entry["runs"] == 2
+    assert data["parameters"]["online_transitions"] == 60
+    assert name.with_suffix(".png").stat().st_size > 0
+
+
+def test_run_suite_refuses_unknown_methods(tmp_path):
+    """A misspelt method is named before anything runs."""
+    with pytest.raises(ValueError, match="methods must be among"):
+        run_suite("deep-sea-treasure-v0", tmp_path, runs=1, methods=["trlsd", "dqn2"])
