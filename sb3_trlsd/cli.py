@@ -26,6 +26,7 @@ import sb3_trlsd_envs
 from sb3_trlsd.cli_parser import IMAGE_EXTENSIONS, ZOO_SCRIPTS, build_parser
 from sb3_trlsd.experiments import FIGURES, STUDIES, STUDY_OPTIONS
 from sb3_trlsd.experiments.benchmark import FAMILIES
+from sb3_trlsd.experiments.mo_suite.command import suite_command
 
 __all__ = ["main"]
 
@@ -285,6 +286,7 @@ COMMANDS: dict[str, Callable[[argparse.Namespace], int]] = {
     "reproduce": reproduce_command,
     "claims": claims_command,
     "benchmark": benchmark_command,
+    "benchmark-suite": suite_command,
 }
 
 

@@ -11,6 +11,7 @@ import os
 from sb3_trlsd.experiments import FIGURES, STUDIES
 from sb3_trlsd.experiments.backends import BACKENDS
 from sb3_trlsd.experiments.benchmark import FAMILIES
+from sb3_trlsd.experiments.mo_suite.command import add_parser as add_suite_parser
 from sb3_trlsd.experiments.protocols import DEFAULT_PROTOCOL, PRESETS
 
 __all__ = [
@@ -204,6 +205,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--workers", type=positive_int, default=os.cpu_count() or 1, help="processes (default: %(default)s)"
     )
     add_cache_options(benchmark)
+    add_suite_parser(commands)
     for script in ZOO_SCRIPTS:
         # Listed for --help; main() hands their arguments to the Zoo before this parser sees them.
         commands.add_parser(
