@@ -1,6 +1,7 @@
 """Fitted-Q Iteration over arrays (Ernst et al. 2005; paper, eq. 1-4): transitions in, Q-function out.
 
-- ``targets.py``: the defaults, ``FQIResult`` and the Bellman targets every solver uses;
+- ``targets.py``: the defaults, the stopping rules, ``FQIResult``, ``FQICapWarning`` and the Bellman targets
+  every solver uses;
 - ``linear.py``: ``LinearFQISolver``, linear FQI that keeps its per-action factorisations across refits;
 - ``linear_runs.py``: ``fit_linear_fqi_runs``, its iterations for several runs at once (one is a fit);
 - ``mlp.py``: FQI with a small network: its output layer by linear FQI on its hidden features.
@@ -13,7 +14,10 @@ from sb3_trlsd.fqi.targets import (
     DEFAULT_LINEAR_ITERATIONS,
     DEFAULT_MLP_ITERATIONS,
     DEFAULT_RIDGE,
+    DEFAULT_STOP_RULE,
     DEFAULT_TOL,
+    STOP_RULES,
+    FQICapWarning,
     FQIResult,
     bellman_targets,
     bellman_targets_by_action,
@@ -25,7 +29,10 @@ __all__ = [
     "DEFAULT_LINEAR_ITERATIONS",
     "DEFAULT_MLP_ITERATIONS",
     "DEFAULT_RIDGE",
+    "DEFAULT_STOP_RULE",
     "DEFAULT_TOL",
+    "STOP_RULES",
+    "FQICapWarning",
     "FQIResult",
     "LinearFQISolver",
     "bellman_targets",

@@ -13,6 +13,7 @@ from sb3_trlsd.fqi.linear_runs import fit_linear_fqi_runs
 from sb3_trlsd.fqi.targets import (
     DEFAULT_LINEAR_ITERATIONS,
     DEFAULT_RIDGE,
+    DEFAULT_STOP_RULE,
     DEFAULT_TOL,
     FQIResult,
 )
@@ -187,6 +188,7 @@ class LinearFQISolver:
         theta0: np.ndarray | None = None,
         max_iterations: int = DEFAULT_LINEAR_ITERATIONS,
         tol: float = DEFAULT_TOL,
+        stop_rule: str = DEFAULT_STOP_RULE,
     ) -> FQIResult:
         """
         Fitted-Q Iteration on the stored transitions with the given rewards (see ``fit_linear_fqi``): one run
@@ -196,13 +198,23 @@ class LinearFQISolver:
         :param gamma: discount factor in [0, 1)
         :param theta0: warm start, (n_actions, k); zeros if None. Actions without samples keep it
         :param max_iterations: cap on the iterations (>= 1)
-        :param tol: stop when max |theta_new - theta| <= tol * (1 + max |theta_new|); with float32 storage,
-            a tol below 64 float32 epsilons (7.6e-6), which rounding would never let the iterations meet, is
-            raised to it
-        :return: theta, iterations run and the RMS Bellman residual
+        :param tol: tolerance of the stopping rule; with float32 storage, a tol below 64 float32 epsilons
+            (7.6e-6), which rounding would never let the iterations meet, is raised to it
+        :param stop_rule: ``"theta"`` (default): stop when max |theta_new - theta| <= tol * (1 +
+            max |theta_new|); ``"targets"``: when the Bellman targets move by max |y_new - y| <= tol times the
+            return scale (see ``fit_linear_fqi_runs``)
+        :return: theta, iterations run, the RMS Bellman residual and whether the rule was met (a fit that
+            stops at ``max_iterations`` without meeting it warns, ``FQICapWarning``)
         """
         return fit_linear_fqi_runs(
-            self, [None], [rewards], gamma=gamma, theta0=[theta0], max_iterations=max_iterations, tol=tol
+            self,
+            [None],
+            [rewards],
+            gamma=gamma,
+            theta0=[theta0],
+            max_iterations=max_iterations,
+            tol=tol,
+            stop_rule=stop_rule,
         )[0]
 
 
@@ -219,6 +231,7 @@ def fit_linear_fqi(
     max_iterations: int = DEFAULT_LINEAR_ITERATIONS,
     tol: float = DEFAULT_TOL,
     ridge: float = DEFAULT_RIDGE,
+    stop_rule: str = DEFAULT_STOP_RULE,
 ) -> FQIResult:
     """
     Linear Fitted-Q Iteration in one call: theta_a <- (X_a^T X_a + ridge I)^-1 X_a^T y_a for each action a
@@ -226,9 +239,8 @@ def fit_linear_fqi(
     y = r + gamma * (1 - terminated) * max_a' theta_a' . Phi(s').
 
     The per-action Gram matrices are factored once: only the targets y change between iterations. The
-    iterations stop when max |theta_new - theta| <= tol * (1 + max |theta_new|), a tolerance relative to
-    the scale of theta (optimistic rewards make it large) and absolute below 1, or after
-    ``max_iterations``. To refit the same, growing transitions with other rewards, keep a
+    iterations stop when ``stop_rule`` is met, or after ``max_iterations`` (with an ``FQICapWarning``). To
+    refit the same, growing transitions with other rewards, keep a
     ``LinearFQISolver`` instead: it keeps the factorisation between fits.
 
     :param phi: Phi(s), (n, k)
@@ -243,9 +255,16 @@ def fit_linear_fqi(
         a contraction of factor gamma, far fewer in practice and when warm-started)
     :param tol: relative stopping tolerance (default ``DEFAULT_TOL``)
     :param ridge: Tikhonov regularisation of each projection (default 1e-3, see ``LinearFQISolver``)
-    :return: theta (n_actions, k), iterations run and the RMS Bellman residual sqrt(mean (y - X theta)^2) of
-        the final theta
+    :param stop_rule: ``"theta"`` (default): stop when max |theta_new - theta| <= tol * (1 + max |theta_new|),
+        a tolerance relative to the scale of theta (optimistic rewards make it large) and absolute below 1;
+        ``"targets"``: when max |y_new - y| <= tol * (high - low) of ``return_bounds``, the change of the
+        Bellman targets relative to the return scale, blind to the directions of theta the data does not see
+        (see ``fit_linear_fqi_runs``)
+    :return: theta (n_actions, k), iterations run, the RMS Bellman residual sqrt(mean (y - X theta)^2) of
+        the final theta, whether the stopping rule was met and the last change it measured
     """
     solver = LinearFQISolver(np.shape(phi)[-1], n_actions, ridge=ridge)
     solver.extend(phi, actions, next_phi, terminated)
-    return solver.fit(rewards, gamma=gamma, theta0=theta0, max_iterations=max_iterations, tol=tol)
+    return solver.fit(
+        rewards, gamma=gamma, theta0=theta0, max_iterations=max_iterations, tol=tol, stop_rule=stop_rule
+    )

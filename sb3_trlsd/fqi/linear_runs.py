@@ -15,10 +15,13 @@ from scipy.linalg import cho_factor, cho_solve
 
 from sb3_trlsd.fqi.targets import (
     DEFAULT_LINEAR_ITERATIONS,
+    DEFAULT_STOP_RULE,
     DEFAULT_TOL,
+    STOP_RULES,
     FQIResult,
     bellman_targets_by_action,
     return_bounds,
+    warn_at_cap,
 )
 
 if TYPE_CHECKING:
@@ -163,6 +166,7 @@ class _BatchedFit:
             self.shared_rewards = self.shared_rewards[:, self.shared.order]
         bounds = np.array([runs[r].bounds for r in self.active], dtype=self.dtype).reshape(-1, 2)
         self.low, self.high = bounds[:, :1], bounds[:, 1:]
+        self.scale = (bounds[:, 1] - bounds[:, 0]).astype(np.float64)  # the return scale of each run
         self.inverses = np.stack([runs[r].inverse for r in self.active]) if len(self.active) else None
         self.has_rows = np.array([runs[r].has_rows for r in self.active]).reshape(-1, self.n_actions, 1)
         self.own = _OwnRows.of([runs[r] for r in self.active], self.n_actions, self.k, self.dtype)
@@ -172,6 +176,7 @@ class _BatchedFit:
         keep = ~done
         self.active, self.shared_rewards = self.active[keep], self.shared_rewards[keep]
         self.low, self.high, self.has_rows = self.low[keep], self.high[keep], self.has_rows[keep]
+        self.scale = self.scale[keep]
         self.inverses = None if self.inverses is None else self.inverses[keep]
         self.own = self.own.kept(keep)
 
@@ -230,6 +235,35 @@ class _BatchedFit:
             squared_error += float(np.sum(own_error**2, dtype=np.float64))
         return float(np.sqrt(squared_error / self.runs[self.active[i]].n_rows))
 
+    def stopped(
+        self,
+        stop_rule: str,
+        tol: float,
+        thetas: tuple[np.ndarray, np.ndarray],
+        targets: tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]],
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """
+        Whether each active run meets ``stop_rule`` after an iteration, and the change it measured, both
+        (active,).
+
+        :param stop_rule: one of ``STOP_RULES`` (see ``fit_linear_fqi_runs``)
+        :param tol: its tolerance
+        :param thetas: theta before and after the iteration, (active, n_actions, k) each
+        :param targets: (shared y, own y) before and after the iteration
+        """
+        if stop_rule == "theta":
+            old, new = thetas
+            step, scale = np.abs(new - old).max(axis=(1, 2)), 1.0 + np.abs(new).max(axis=(1, 2))
+            return step <= tol * scale, step / scale
+        # max |y_new - y| over the rows; padded own rows have y = 0 before and after.
+        change = np.zeros(len(self.active))
+        for old_y, new_y in zip(*targets, strict=True):
+            if old_y.shape[1]:
+                change = np.maximum(change, np.abs(new_y - old_y).max(axis=1))
+        # Relative to the return scale; a run whose rewards are all 0 has targets 0: no change.
+        change = np.divide(change, self.scale, out=np.zeros_like(change), where=self.scale > 0)
+        return change <= tol, change
+
 
 def fit_linear_fqi_runs(
     shared: LinearFQISolver | None,
@@ -240,6 +274,7 @@ def fit_linear_fqi_runs(
     theta0: Sequence[np.ndarray | None],
     max_iterations: int = DEFAULT_LINEAR_ITERATIONS,
     tol: float = DEFAULT_TOL,
+    stop_rule: str = DEFAULT_STOP_RULE,
 ) -> list[FQIResult]:
     """
     Linear Fitted-Q Iteration of several runs at once (eq. 3-4): run r fits on the ``shared`` rows followed by
@@ -252,13 +287,26 @@ def fit_linear_fqi_runs(
     (each holding ridge I) added. Each run stops by its own rule, so it gets what a fit of it alone gives,
     up to the order of floating-point sums. ``LinearFQISolver.fit`` is this function with one run.
 
+    A run that stops at ``max_iterations`` without meeting its rule has ``converged=False`` in its result,
+    and the call warns once (``FQICapWarning``) for all such runs.
+
     :param shared: the rows every run has (None: none)
     :param own: each run's own rows (None: none); the solvers' sizes, ridge and precision must agree
     :param rewards: each run's r, (n_shared + n_own_r,)
     :param gamma: discount factor in [0, 1)
     :param theta0: each run's warm start, (n_actions, k) or None for zeros. Actions without rows keep it
     :param max_iterations: cap on the iterations of each run (>= 1)
-    :param tol: each run stops when max |theta_new - theta| <= tol * (1 + max |theta_new|) (see ``fit``)
+    :param tol: tolerance of the stopping rule (>= 0); with float32 storage, a tol below 64 float32 epsilons
+        (7.6e-6), which rounding would never let the iterations meet, is raised to it
+    :param stop_rule: when each run stops (``STOP_RULES``):
+
+        - ``"theta"`` (default, the rule every fit had so far): max |theta_new - theta| <= tol * (1 +
+          max |theta_new|). It can run to the cap while Q has converged: with float32 features and an
+          ill-conditioned Gram matrix, rounding keeps moving theta where the data barely constrains it;
+        - ``"targets"``: max |y_new - y| <= tol * (high - low) over the run's rows, the Bellman targets'
+          change relative to the run's return scale (``return_bounds``). Where the iterations contract with
+          factor rho, the targets are then within rho / (1 - rho) * tol * (high - low) of their fixed
+          point's (rho <= gamma for a contraction in the max norm)
     :return: one result per run
     """
     solvers = [solver for solver in (shared, *own) if solver is not None]
@@ -272,6 +320,8 @@ def fit_linear_fqi_runs(
         raise ValueError(f"gamma must be in [0, 1), got {gamma}")
     if not max_iterations >= 1 or not tol >= 0:
         raise ValueError(f"max_iterations must be >= 1 and tol >= 0, got {max_iterations} and {tol}")
+    if stop_rule not in STOP_RULES:
+        raise ValueError(f"stop_rule must be one of {list(STOP_RULES)}, got {stop_rule!r}")
     first = _check_solvers(solvers)
     n_actions, k, dtype = first.n_actions, first.n_features, first.dtype
     tol = max(tol, 64 * float(np.finfo(dtype).eps))
@@ -307,18 +357,25 @@ def fit_linear_fqi_runs(
         for run in runs
     ]
     theta = np.stack([runs[r].theta0 for r in fit.active]) if len(fit.active) else None
+    capped = False
     if theta is not None:
         shared_y, own_y = fit.targets(theta)
         for iteration in range(1, max_iterations + 1):
             new_theta = fit.projected(theta, shared_y, own_y)
-            change = np.abs(new_theta - theta).max(axis=(1, 2))
+            old_theta, old_y = theta, (shared_y, own_y)
             theta = new_theta
             shared_y, own_y = fit.targets(theta)
-            done = (change <= tol * (1.0 + np.abs(theta).max(axis=(1, 2)))) | (iteration == max_iterations)
+            converged, change = fit.stopped(stop_rule, tol, (old_theta, theta), (old_y, (shared_y, own_y)))
+            done = converged | (iteration == max_iterations)
+            capped = capped or not converged[done].all()
             for i in np.flatnonzero(done):
                 residual = fit.residual(int(i), theta[i], shared_y, own_y)
                 results[fit.active[i]] = FQIResult(
-                    theta=theta[i], iterations=iteration, bellman_residual=residual
+                    theta=theta[i],
+                    iterations=iteration,
+                    bellman_residual=residual,
+                    converged=bool(converged[i]),
+                    change=float(change[i]),
                 )
             if done.all():
                 break
@@ -326,5 +383,7 @@ def fit_linear_fqi_runs(
                 theta = theta[~done]
                 shared_y, own_y = shared_y[~done], own_y[~done]
                 fit.drop(done)
+    if capped:
+        warn_at_cap(stop_rule)
     assert all(result is not None for result in results)
     return results  # type: ignore[return-value]

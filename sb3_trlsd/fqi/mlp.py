@@ -16,7 +16,14 @@ import numpy as np
 import torch as th
 
 from sb3_trlsd.fqi.linear import LinearFQISolver
-from sb3_trlsd.fqi.targets import DEFAULT_MLP_ITERATIONS, DEFAULT_RIDGE, DEFAULT_TOL, FQIResult, return_bounds
+from sb3_trlsd.fqi.targets import (
+    DEFAULT_MLP_ITERATIONS,
+    DEFAULT_RIDGE,
+    DEFAULT_STOP_RULE,
+    DEFAULT_TOL,
+    FQIResult,
+    return_bounds,
+)
 
 __all__ = ["fit_mlp_fqi", "make_q_network"]
 
@@ -72,6 +79,7 @@ def fit_mlp_fqi(
     learning_rate: float = 1e-3,
     ridge: float = DEFAULT_RIDGE,
     generator: th.Generator | None = None,
+    stop_rule: str = DEFAULT_STOP_RULE,
 ) -> FQIResult:
     """
     Fitted-Q Iteration with a network whose last layer is linear, trained in place from its current weights:
@@ -83,8 +91,8 @@ def fit_mlp_fqi(
        rewards shrink;
     2. the fitted iterations: linear FQI of the output layer on the features Phi(s) = [h(s), 1] of the
        hidden layers, Q(s, a) = theta_a . Phi(s) (eq. 3-4, ``LinearFQISolver`` in float64), warm-started from
-       the current output layer. Stopping rule: the iterations stop once theta moves by
-       max |theta_new - theta| <= tol * (1 + max |theta_new|), or after ``max_iterations``.
+       the current output layer. The iterations stop by ``stop_rule``, or after ``max_iterations`` (with an
+       ``FQICapWarning``).
 
     Deterministic given the network's weights, the optimizer's state and ``generator``.
 
@@ -105,7 +113,10 @@ def fit_mlp_fqi(
     :param learning_rate: learning rate of the Adam made when ``optimizer`` is None (> 0)
     :param ridge: Tikhonov regularisation of the output layer's per-action projections (> 0)
     :param generator: CPU torch generator of the minibatch shuffling (global RNG if None)
-    :return: the fitted iterations run and the RMS Bellman residual of the final Q
+    :param stop_rule: stopping rule of the fitted iterations, ``"theta"`` (default) or ``"targets"`` (see
+        ``fit_linear_fqi_runs``)
+    :return: the fitted iterations run, the RMS Bellman residual of the final Q and whether the stopping rule
+        was met
     """
     if not 0 <= gamma < 1:
         raise ValueError(f"gamma must be in [0, 1), got {gamma}")
@@ -150,9 +161,16 @@ def fit_mlp_fqi(
     solver.extend(phi, a[:, 0].cpu().numpy(), next_phi, th.as_tensor(terminated).cpu().numpy())
     with th.no_grad():
         theta0 = th.cat([output.weight, output.bias[:, None]], dim=1).double().cpu().numpy()
-    result = solver.fit(rewards, gamma=gamma, theta0=theta0, max_iterations=max_iterations, tol=tol)
+    result = solver.fit(
+        rewards, gamma=gamma, theta0=theta0, max_iterations=max_iterations, tol=tol, stop_rule=stop_rule
+    )
     assert result.theta is not None
     with th.no_grad():
         output.weight.copy_(th.as_tensor(result.theta[:, :-1]))
         output.bias.copy_(th.as_tensor(result.theta[:, -1]))
-    return FQIResult(iterations=result.iterations, bellman_residual=result.bellman_residual)
+    return FQIResult(
+        iterations=result.iterations,
+        bellman_residual=result.bellman_residual,
+        converged=result.converged,
+        change=result.change,
+    )

@@ -6,6 +6,7 @@ bootstrap, as a trajectory reset is not the end of the task.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -14,12 +15,16 @@ __all__ = [
     "DEFAULT_LINEAR_ITERATIONS",
     "DEFAULT_MLP_ITERATIONS",
     "DEFAULT_RIDGE",
+    "DEFAULT_STOP_RULE",
     "DEFAULT_TOL",
+    "STOP_RULES",
+    "FQICapWarning",
     "FQIResult",
     "bellman_targets",
     "bellman_targets_by_action",
     "linear_q_values",
     "return_bounds",
+    "warn_at_cap",
 ]
 
 # The Fitted-Q settings, in one place (TRLSD's arguments and the policies default to these).
@@ -33,6 +38,41 @@ DEFAULT_MLP_ITERATIONS = 200
 DEFAULT_TOL = 1e-4
 # Tikhonov regularisation of each per-action projection of eq. 4 (see ``LinearFQISolver``).
 DEFAULT_RIDGE = 1e-3
+# When the linear iterations stop (``fit_linear_fqi_runs``):
+# - "theta": max |theta_new - theta| <= tol * (1 + max |theta_new|). With float32 features and an
+#   ill-conditioned Gram matrix (overlapping RBFs: condition number 1e6 for 10 x 10 RBFs of width 0.1),
+#   rounding moves theta by ~1e-3 of its scale along the directions the data barely sees, at every
+#   iteration: this rule then runs to the cap while the Q-values on the data have long stopped moving;
+# - "targets": max |y_new - y| <= tol * (high - low) of ``return_bounds``, the Bellman targets' change
+#   relative to the scale of the returns. The next theta is a function of the targets alone, so this is the
+#   change the iterations can still make to Q on the data, blind to theta's unseen directions.
+STOP_RULES = ("theta", "targets")
+# "theta" keeps every existing fit as it was, to the bit; "targets" is the rule to choose off the maze.
+DEFAULT_STOP_RULE = "theta"
+
+
+class FQICapWarning(UserWarning):
+    """A Fitted-Q fit stopped at its cap of iterations before its stopping rule was met."""
+
+
+def warn_at_cap(stop_rule: str, stacklevel: int = 2) -> None:
+    """
+    Warn (``FQICapWarning``) that a fit ran to its cap without meeting its stopping rule. The text holds no
+    number, so Python's default filter shows it once per calling line however many refits hit the cap.
+
+    :param stop_rule: the fit's stopping rule, one of ``STOP_RULES``
+    :param stacklevel: as in ``warnings.warn``
+    """
+    other_rule = "stop_rule='targets', which ignores the directions of theta the data does not see, "
+    advice = other_rule if stop_rule == "theta" else ""
+    warnings.warn(
+        f"Fitted-Q Iteration stopped at max_iterations (TRLSD: fqi_max_iterations) before its stopping rule "
+        f"{stop_rule!r} was met (tol, TRLSD: fqi_tol): its Q may be short of the fixed point, or the greedy "
+        f"policy may cycle between iterations (FQIResult.converged, .change). Try {advice}a larger tol, "
+        "a larger max_iterations, or float64 features",
+        FQICapWarning,
+        stacklevel=stacklevel + 1,
+    )
 
 
 @dataclass(frozen=True)
@@ -44,11 +84,16 @@ class FQIResult:
     :param bellman_residual: RMS of y - Q(s, a) over the transitions with the final Q
     :param theta: the linear solvers' parameters (n_actions, k) of Q(s, a) = theta[a] . Phi(s); None for a
         network, trained in place
+    :param converged: the stopping rule was met (False: the iterations stopped at their cap)
+    :param change: the last change the stopping rule measured, in its relative units (stopped when
+        <= tol); 0 when there was nothing to fit
     """
 
     iterations: int
     bellman_residual: float
     theta: np.ndarray | None = None
+    converged: bool = True
+    change: float = 0.0
 
 
 def linear_q_values(phi: np.ndarray, theta: np.ndarray) -> np.ndarray:
