@@ -63,6 +63,7 @@ def run_once(
             "reward_head": "tabular" if "tabular" in method else "ridge",
             "kappa": args.kappa,
             "reward_head_kwargs": {"r_max": args.r_max},
+            "reward_timing": "start_state",  # the maze pays for the state a step starts from
         }
     with one_torch_thread():
         model = DQN("MultiInputPolicy", env, seed=seed, device="cpu", **settings)

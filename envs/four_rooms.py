@@ -181,7 +181,7 @@ class FourRooms(TaskFamilyEnv):
     - v0: initial version.
     """
 
-    metadata = {"render_modes": ["rgb_array"], "render_fps": 4}
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 4, "reward_timing": "start_state"}
     action_meaning = "an integer in 0..3 (NORTH, WEST, SOUTH, EAST)"
 
     def __init__(

@@ -158,7 +158,7 @@ class GoalCartPole(TaskFamilyEnv):
     - v0: initial version.
     """
 
-    metadata = {"render_modes": ["rgb_array"], "render_fps": 50}
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 50, "reward_timing": "start_state"}
     action_meaning = "0 (push left) or 1 (push right)"
 
     def __init__(

@@ -93,7 +93,8 @@ class SharedDynamicsMaze(gym.Env):
     With a table of standard deviations, one per cell (`reward_noise_std=CELL_NOISE_STDS`, a checkerboard
     of 0.1 and 1.44), the noise of s_t's cell is drawn: the same draw N(0, 1) from `np_random`, scaled by
     that cell's standard deviation, so a maze with a table makes the same moves as one without, seed for
-    seed. `expected_reward(states, task)` gives the noise-free expectation.
+    seed. `expected_reward(states, task)` gives the noise-free expectation. `metadata["reward_timing"]` is
+    `"start_state"`, which TRLSD's `reward_timing="auto"` reads.
 
     ## Episode End
     After each step the trajectory ends with probability `termination_prob` (0.02). This is a reset, not an
@@ -123,7 +124,7 @@ class SharedDynamicsMaze(gym.Env):
       is unchanged).
     """
 
-    metadata = {"render_modes": ["rgb_array"], "render_fps": 4}
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 4, "reward_timing": "start_state"}
 
     def __init__(
         self,

@@ -34,7 +34,7 @@ from sb3_trlsd.reward_heads import (
     RewardHead,
     make_reward_head,
 )
-from sb3_trlsd.task_learner import FIRST_FIT_RULES, TaskLearner
+from sb3_trlsd.task_learner import FIRST_FIT_RULES, REWARD_TIMINGS, TaskLearner
 
 __all__ = ["FEATURE_HEAD_NAMES", "HEAD_NAMES", "LearnerBuilder", "TRLSDConfig", "check_discount", "head_seed"]
 
@@ -124,6 +124,9 @@ class TRLSDConfig:
     :param fourier_features: the number of Fourier features (None: the feature map's default)
     :param state_bounds: ``(low, high)`` of the states for an unbounded Box (None: the Box's, finite)
     :param reward_head_kwargs: extra arguments of the named reward heads
+    :param reward_timing: the state of a transition its reward belongs to: ``"start_state"`` (the paper's
+        R_tau(s)), ``"next_state"`` (the state it arrives at: Gymnasium's convention) or ``"auto"`` (the env's
+        ``metadata["reward_timing"]`` where it declares one, else ``"next_state"``)
     """
 
     reward_head: str | RewardHead = "ridge"
@@ -140,6 +143,7 @@ class TRLSDConfig:
     fourier_features: int | None = None
     state_bounds: Bounds | None = None
     reward_head_kwargs: Mapping[str, Any] = field(default_factory=dict)
+    reward_timing: str = "auto"
 
     def __post_init__(self) -> None:
         # A copy: the caller's dict is theirs (and a frozen config is not changed through it).
@@ -177,6 +181,11 @@ class TRLSDConfig:
                 f"similarity must be 'state' with reward_head='bernstein' (its weights are eq. 6's), "
                 f"got {self.similarity!r}"
             )
+        if self.reward_timing not in (*REWARD_TIMINGS, "auto"):
+            raise ValueError(
+                f"reward_timing must be one of {[*REWARD_TIMINGS, 'auto']} (the state a reward belongs to), "
+                f"got {self.reward_timing!r}"
+            )
         if self.first_fit not in FIRST_FIT_RULES:
             raise ValueError(
                 f"first_fit must be one of {list(FIRST_FIT_RULES)} (when a task's Q is first fitted), "
@@ -204,6 +213,7 @@ class TRLSDConfig:
             else type(self.feature_map).__name__,
             "rbf_per_dim": self.rbf_per_dim,
             "rbf_sigma": self.rbf_sigma,
+            "reward_timing": self.reward_timing,
         }
         return {
             key: value if isinstance(value, (int, float, bool)) else str(value)
@@ -274,6 +284,7 @@ class TRLSDConfig:
         n_actions: int,
         linear_q: bool,
         seed: int | None = None,
+        env_reward_timing: str | None = None,
     ) -> LearnerBuilder:
         """
         What these settings build for an env of these spaces: its state box, the feature map Phi shared by
@@ -283,6 +294,8 @@ class TRLSDConfig:
         :param n_actions: the env's actions (0 when no Q is fitted on Phi: its memory is then the heads')
         :param linear_q: whether a linear Q-function is fitted on Phi
         :param seed: the run's seed: of the Fourier features and of the Thompson heads' draws
+        :param env_reward_timing: the reward timing the env declares (its ``metadata["reward_timing"]``),
+            which ``reward_timing="auto"`` takes (None: ``"next_state"``)
         :return: the builder
         """
         low, high = self.state_box(observation_space)
@@ -303,7 +316,24 @@ class TRLSDConfig:
                     n_tasks=task_count_of(observation_space) if self.heads_use_features() else 0,
                 )
             )
-        return LearnerBuilder(self, low, high, features, seed)
+        return LearnerBuilder(self, low, high, features, self.timing_for(env_reward_timing), seed)
+
+    def timing_for(self, env_reward_timing: str | None) -> str:
+        """
+        The reward timing these settings give on an env that declares ``env_reward_timing`` (None: nothing).
+
+        :raises ValueError: when ``"auto"`` meets a declaration that is not one of ``REWARD_TIMINGS``
+        """
+        if self.reward_timing != "auto":
+            return self.reward_timing
+        if env_reward_timing is None:
+            return "next_state"
+        if env_reward_timing not in REWARD_TIMINGS:
+            raise ValueError(
+                f"the env's metadata['reward_timing'] must be one of {list(REWARD_TIMINGS)}, "
+                f"got {env_reward_timing!r}"
+            )
+        return env_reward_timing
 
 
 @dataclass(frozen=True)
@@ -315,6 +345,7 @@ class LearnerBuilder:
     :param low: the state box's lower corner, (d,)
     :param high: its upper corner, (d,)
     :param features: Phi, shared by the linear Q and the feature heads (None when neither uses one)
+    :param reward_timing: the state of a transition its reward belongs to, one of ``REWARD_TIMINGS``
     :param seed: the run's seed (of the Thompson heads' draws, unless ``reward_head_kwargs`` gives theirs)
     """
 
@@ -322,6 +353,7 @@ class LearnerBuilder:
     low: np.ndarray
     high: np.ndarray
     features: FeatureMap | None
+    reward_timing: str
     seed: int | None = None
 
     def reward_head(
@@ -368,7 +400,7 @@ class LearnerBuilder:
     ) -> TaskLearner:
         """
         The learning state of ``task`` with no samples: its reward head (``reward_head``), the config's
-        ``update_ratio`` and ``first_fit``.
+        ``update_ratio`` and ``first_fit``, and the reward timing.
 
         :param task: the task
         :param reward_fn: see ``reward_head``
@@ -377,5 +409,9 @@ class LearnerBuilder:
         """
         config = self.config
         return TaskLearner(
-            task, self.reward_head(task, reward_fn, seed), config.update_ratio, first_fit=config.first_fit
+            task,
+            self.reward_head(task, reward_fn, seed),
+            config.update_ratio,
+            first_fit=config.first_fit,
+            reward_timing=self.reward_timing,
         )

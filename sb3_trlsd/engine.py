@@ -7,7 +7,7 @@ and calls, for a batch of transitions, each with its run:
 - ``act(runs, states, tasks)``: a task's Q is fitted before its first action (under
   ``first_fit="first_step"``), then the greedy action argmax_a Q_run,tau(s, a) (eq. 3);
 - ``observe(runs, ...)``: each transition goes to its run's buffer (at once, or held back until the run's
-  next refit) and its start state and reward to its task's learner, whose trigger may fire (section 3);
+  next refit) and its reward to its task's learner, whose trigger may fire (section 3);
 - ``refit_due()``: the tasks whose trigger fired are refitted by Fitted-Q Iteration on their run's buffer
   relabelled with their reward proxy R~ (Algorithm 1, psi), all in one call of the Q-functions' fit.
 
@@ -160,7 +160,7 @@ class Engine:
     ) -> None:
         """
         Take in transitions, each of its run: store it (unless the caller did), and feed its task's learner
-        the reward at its start state (which may make the task due for a refit).
+        its reward (which may make the task due for a refit).
 
         :param runs: the run of each transition, (n,)
         :param states: start states, (n, d)
@@ -179,7 +179,8 @@ class Engine:
                 run.pending.append(
                     (states[i], actions[i], rewards[i], next_states[i], tasks[i], truncated[i], terminated[i])
                 )
-            self.learner(run_index, tasks[i]).observe(states[i], float(rewards[i]), n_rows=run.n_rows)
+            learner = self.learner(run_index, tasks[i])
+            learner.observe(states[i], next_states[i], float(rewards[i]), n_rows=run.n_rows)
 
     def due(self) -> list[tuple[int, int]]:
         """The (run, task) pairs whose refit is due, in order."""

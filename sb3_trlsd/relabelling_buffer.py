@@ -37,14 +37,14 @@ class RelabellingReplayBuffer(SharedDynamicsReplayBuffer):
 
     Each task of the observations has a reward head (``"ridge"``: eq. 8-9 on the feature map Phi;
     ``"tabular"``: eq. 10 on a grid of cells), which learns from every online transition of its task as
-    ``add`` stores it: the reward observed for the transition's start state s, the paper's R_tau(s). A
-    sampled source row is served to one of the tasks seen online (drawn uniformly when there are several:
-    its observation's ``"task"`` becomes that task) with the reward R~_tau(s) = R^_tau(s) + CI_tau(s) of
-    that task's head as it is now (``kappa=0``: the plain estimate R^). Online rows keep their observed
-    reward by default, as HER keeps its real transitions: the head only stands in for rewards nobody
-    observed (on the maze, relabelling them too with the ridge head left DQN's greedy policy at 0.01
-    after 1,000 steps on 5 seeds, against 0.34 when they kept theirs). ``relabel_online_rows=True``
-    relabels them with their own task's head, as TRLSD's FQI sees its whole buffer.
+    ``add`` stores it: the reward observed for the transition, at the state it belongs to
+    (``reward_timing``: the next state by default, the start state s of the paper's R_tau(s)). A sampled
+    source row is served to one of the tasks seen online (drawn uniformly when there are several: its
+    observation's ``"task"`` becomes that task) with the reward R~_tau = R^_tau + CI_tau of that task's head
+    as it is now (``kappa=0``: the plain estimate R^). Online rows keep their observed reward by default,
+    as HER keeps its real transitions: the head only stands in for rewards nobody observed.
+    ``relabel_online_rows=True`` relabels them with their own task's head, as TRLSD's FQI sees its whole
+    buffer.
 
     Rows live in one ring of ``buffer_size`` rows, source and online alike (as in any SB3 buffer, the
     oldest go first once it is full): give it room for the source rows and the online budget. The heads
@@ -73,7 +73,11 @@ class RelabellingReplayBuffer(SharedDynamicsReplayBuffer):
             gradient_steps=4,
             target_update_interval=100,
             replay_buffer_class=RelabellingReplayBuffer,
-            replay_buffer_kwargs={"reward_head": "tabular", "reward_head_kwargs": {"r_max": 1.0}},
+            replay_buffer_kwargs={  # the maze pays for the state a step starts from
+                "reward_head": "tabular",
+                "reward_head_kwargs": {"r_max": 1.0},
+                "reward_timing": "start_state",
+            },
             seed=0,
         )
         model.replay_buffer.load_transitions(source)  # their rewards are discarded
@@ -109,6 +113,9 @@ class RelabellingReplayBuffer(SharedDynamicsReplayBuffer):
         ``n_cells``, ``cells_per_dim`` for the tabular ones)
     :param reward_fn: ``reward_fn(states, task) -> (n,)``, the expected reward of the ``"known"`` head
     :param seed: seed of the Fourier features and of the ``"thompson"`` heads' draws
+    :param reward_timing: the state of a transition its reward belongs to, which the heads learn and relabel
+        at: ``"next_state"`` (the state it arrives at: Gymnasium's convention) or ``"start_state"`` (the
+        paper's R_tau(s), and this package's envs'); ``"auto"`` is ``"next_state"`` (a buffer sees no env)
     :param relabel_online_rows: relabel the online rows too (False: they keep their observed reward)
     """
 
@@ -136,6 +143,7 @@ class RelabellingReplayBuffer(SharedDynamicsReplayBuffer):
         reward_head_kwargs: dict[str, Any] | None = None,
         reward_fn: RewardFn | None = None,
         seed: int | None = None,
+        reward_timing: str = "next_state",
         relabel_online_rows: bool = False,
     ):
         # TRLSD's settings of the relabelling, checked (and named) before anything is built.
@@ -150,6 +158,7 @@ class RelabellingReplayBuffer(SharedDynamicsReplayBuffer):
             fourier_features=fourier_features,
             state_bounds=state_bounds,
             reward_head_kwargs=reward_head_kwargs or {},
+            reward_timing=reward_timing,
         )
         super().__init__(
             buffer_size,
@@ -163,6 +172,7 @@ class RelabellingReplayBuffer(SharedDynamicsReplayBuffer):
         self.dict_observations = isinstance(observation_space, spaces.Dict)
         self.relabel_online_rows = bool(relabel_online_rows)
         builder = self.config.builder(observation_space, n_actions=0, linear_q=False, seed=seed)
+        self.reward_timing = builder.reward_timing
         self.features = builder.features
         self.reward_heads = [builder.reward_head(task, reward_fn=reward_fn) for task in range(self.n_tasks)]
 
@@ -178,7 +188,9 @@ class RelabellingReplayBuffer(SharedDynamicsReplayBuffer):
     ) -> None:
         """Store one step of the envs (validated first), and teach each task's head its rewards."""
         super().add(obs, next_obs, action, reward, done, infos)
-        states, tasks = split_observation(obs, self.obs_shape[0])
+        states, tasks = split_observation(
+            next_obs if self.reward_timing == "next_state" else obs, self.obs_shape[0]
+        )
         rewards = np.asarray(reward, dtype=np.float64).reshape(-1)
         for task in np.unique(tasks):
             self.reward_heads[task].update(states[tasks == task], rewards[tasks == task])
@@ -231,7 +243,8 @@ class RelabellingReplayBuffer(SharedDynamicsReplayBuffer):
         relabelled = np.ones_like(source) if self.relabel_online_rows else source
         for task in np.unique(tasks[relabelled]):
             rows = relabelled & (tasks == task)
-            rewards[rows] = self.reward_heads[task].optimistic(states[rows])  # eq. 5: R~ = R^ + CI
+            rewarded = next_states[rows] if self.reward_timing == "next_state" else states[rows]
+            rewards[rows] = self.reward_heads[task].optimistic(rewarded)  # eq. 5: R~ = R^ + CI
         # Only terminations stop the bootstrap, not the resets after a truncation.
         dones = self.dones[batch_inds, env_indices] * (1 - self.timeouts[batch_inds, env_indices])
         rewards_column = self.to_torch(self._normalize_reward(rewards.reshape(-1, 1), env))

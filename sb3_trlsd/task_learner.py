@@ -17,12 +17,15 @@ import numpy as np
 from sb3_trlsd.buffers import BufferCursor, SharedDynamicsReplayBuffer
 from sb3_trlsd.reward_heads import RewardHead, RewardTracker
 
-__all__ = ["FIRST_FIT_RULES", "TaskLearner"]
+__all__ = ["FIRST_FIT_RULES", "REWARD_TIMINGS", "TaskLearner"]
 
 # When a task's Q-function is first fitted (the paper does not say): before its first action, on R~ of no
 # sample (the optimism of an empty head); or once its first sample (and reward) is in, acting before that
 # with the unfitted Q (every action ties: the policy's argmax takes the first).
 FIRST_FIT_RULES = ("first_step", "first_sample")
+# Which state of a transition its reward belongs to: the state it starts from (the paper's R_tau(s), and this
+# package's own envs), or the state it arrives at (Gymnasium's convention: a step pays for where it led).
+REWARD_TIMINGS = ("start_state", "next_state")
 
 
 class TaskLearner:
@@ -35,18 +38,28 @@ class TaskLearner:
         divided by this since its last refit (> 1)
     :param first_fit: when the task is first fitted, one of ``FIRST_FIT_RULES``: ``"first_step"`` (before
         its first action, see ``fit_before_acting``) or ``"first_sample"`` (due once its first sample is in)
+    :param reward_timing: the state of a transition its reward belongs to, one of ``REWARD_TIMINGS``: the head
+        learns, and relabels the buffer, at that state
     """
 
-    first_fit = "first_step"  # learners saved before the rule existed read this class default
-
-    def __init__(self, task: int, head: RewardHead, update_ratio: float, first_fit: str = "first_step"):
+    def __init__(
+        self,
+        task: int,
+        head: RewardHead,
+        update_ratio: float,
+        first_fit: str = "first_step",
+        reward_timing: str = "start_state",
+    ):
         if not update_ratio > 1:
             raise ValueError(
                 f"update_ratio must be > 1 (the CI must shrink to trigger a refit), got {update_ratio}"
             )
         if first_fit not in FIRST_FIT_RULES:
             raise ValueError(f"first_fit must be one of {list(FIRST_FIT_RULES)}, got {first_fit!r}")
+        if reward_timing not in REWARD_TIMINGS:
+            raise ValueError(f"reward_timing must be one of {list(REWARD_TIMINGS)}, got {reward_timing!r}")
         self.first_fit = first_fit
+        self.reward_timing = reward_timing
         self.task = int(task)
         self.head = head
         self.update_ratio = float(update_ratio)
@@ -76,9 +89,10 @@ class TaskLearner:
         """Whether the task's Q-function must be fitted before its next action (its first, by default)."""
         return not self.fitted and self.first_fit == "first_step"
 
-    def observe(self, state: np.ndarray, reward: float, n_rows: int) -> None:
+    def observe(self, state: np.ndarray, next_state: np.ndarray, reward: float, n_rows: int) -> None:
         """
-        Add one online sample of the task to its reward head, and mark the task due if the trigger fires:
+        Add one online sample of the task to its reward head (the reward at the transition's start or next
+        state, as ``reward_timing`` says), and mark the task due if the trigger fires:
         section 3 refits once the CI at an encountered state has been divided by ``update_ratio`` since the
         last refit. The ratio is taken on the kappa-free uncertainty, so that kappa = 0 triggers the same way.
         A head without uncertainty (the known reward) has nothing to divide: it refits when the shared buffer
@@ -88,10 +102,12 @@ class TaskLearner:
         first step under ``"first_step"``).
 
         :param state: the transition's start state (d,)
-        :param reward: the reward observed there
+        :param next_state: the state it arrived at (d,)
+        :param reward: the reward observed for it
         :param n_rows: the rows of the shared buffer now
         """
-        state = np.asarray(state, dtype=np.float64).reshape(1, -1)
+        rewarded = next_state if self.reward_timing == "next_state" else state
+        state = np.asarray(rewarded, dtype=np.float64).reshape(1, -1)
         self.head.update(state, np.array([reward], dtype=np.float64))
         if not self.fitted:
             self.due = self.due or self.first_fit == "first_sample"
@@ -105,8 +121,8 @@ class TaskLearner:
 
     def relabelled_rewards(self, buffer: SharedDynamicsReplayBuffer) -> np.ndarray:
         """
-        R~_tau at the start state of every transition of the buffer, oldest first (Psi of section 2); between
-        two calls only the new rows and the head's new samples are folded in.
+        R~_tau at the rewarded state (``reward_timing``) of every transition of the buffer, oldest first (Psi
+        of section 2); between two calls only the new rows and the head's new samples are folded in.
 
         :param buffer: the shared buffer
         :return: rewards (n,)
@@ -114,10 +130,11 @@ class TaskLearner:
         if self._relabelling is None:
             self._cursor = BufferCursor()
         rows, restart = buffer.read_new(self._cursor)
+        states = rows.next_states if self.reward_timing == "next_state" else rows.states
         if restart or self._relabelling is None:
-            self._relabelling = self.head.tracker(rows.states)
+            self._relabelling = self.head.tracker(states)
         else:
-            self._relabelling.extend(rows.states)
+            self._relabelling.extend(states)
         return self._relabelling.optimistic()
 
     def refitted(self, n_rows: int) -> None:

@@ -114,6 +114,11 @@ class TRLSD(OffPolicyAlgorithm):
     :param reward_head_kwargs: extra arguments of the named reward heads (e.g. ``w_floor``, ``r_max``;
         ``ridge`` of the linear-posterior heads, ``seed`` of ``"thompson"``, ``reward_range`` of
         ``"bernstein"``)
+    :param reward_timing: the state of a transition its reward belongs to, which the reward heads learn and
+        relabel at: ``"start_state"`` (the paper's R_tau(s)), ``"next_state"`` (the state it arrives at:
+        Gymnasium's convention, e.g. a goal paid on arrival) or ``"auto"`` (the env's
+        ``metadata["reward_timing"]`` where it declares one, as this package's envs do, else
+        ``"next_state"``)
     :param source_transitions: source set loaded (rewards discarded) at the first ``learn``: a number of
         random transitions (the paper's 25,000) from ``source_env``, or the path of a ``Transitions`` .npz
     :param source_seed: seed of the collection of ``source_transitions`` (None: ``seed``)
@@ -169,6 +174,7 @@ class TRLSD(OffPolicyAlgorithm):
         state_bounds: tuple[Sequence[float], Sequence[float]] | None = None,
         reward_fn: RewardFn | None = None,
         reward_head_kwargs: dict[str, Any] | None = None,
+        reward_timing: str = "auto",
         source_transitions: int | str | os.PathLike | None = None,
         source_seed: int | None = None,
         source_env: gym.Env | Callable[[], gym.Env] | None = None,
@@ -204,6 +210,7 @@ class TRLSD(OffPolicyAlgorithm):
             fourier_features=fourier_features,
             state_bounds=state_bounds,
             reward_head_kwargs=reward_head_kwargs or {},
+            reward_timing=reward_timing,
         )
         check_source_transitions(source_transitions)
         if isinstance(log_picture_every, bool) or not (
@@ -245,6 +252,7 @@ class TRLSD(OffPolicyAlgorithm):
         self.log_picture_every = log_picture_every
         self._source_loaded = False
         self.task_learners = {}
+        self.reward_timing: str | None = None  # the config's, resolved on the env (see TRLSDConfig)
         # load() builds the model without an env first: the spaces are checked once they are known.
         action_space = getattr(self, "action_space", None)
         if action_space is not None and not isinstance(action_space, spaces.Discrete):
@@ -264,8 +272,15 @@ class TRLSD(OffPolicyAlgorithm):
             )
         assert isinstance(self.action_space, spaces.Discrete)
         linear_q = issubclass(self.policy_class, LinearPolicy)
+        if self.env is not None:  # a model loaded without its env keeps the timing it was made with
+            metadata = self.env.get_attr("metadata", indices=0)[0] or {}
+            self.reward_timing = self.config.timing_for(metadata.get("reward_timing"))
         self._builder = self.config.builder(
-            self.observation_space, int(self.action_space.n), linear_q=linear_q, seed=self.seed
+            self.observation_space,
+            int(self.action_space.n),
+            linear_q=linear_q,
+            seed=self.seed,
+            env_reward_timing=self.reward_timing,
         )
         # One feature map Phi, for the linear policy and the feature heads.
         self.features = self._builder.features
@@ -340,9 +355,10 @@ class TRLSD(OffPolicyAlgorithm):
         transitions = data if isinstance(data, Transitions) else Transitions.load(data)
         self.replay_buffer.add_transitions(transitions, keep_rewards=keep_rewards)
         if keep_rewards:
+            rewarded = transitions.next_states if self.reward_timing == "next_state" else transitions.states
             for task in np.unique(transitions.tasks):
                 rows = transitions.tasks == task
-                self.task_learner(task).head.update(transitions.states[rows], transitions.rewards[rows])
+                self.task_learner(task).head.update(rewarded[rows], transitions.rewards[rows])
         # New dynamics data: every fitted task is refitted at the next training round.
         for learner in self.task_learners.values():
             learner.due = learner.due or learner.fitted

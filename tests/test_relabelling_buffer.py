@@ -29,6 +29,8 @@ def maze_spaces():
 
 
 def make_buffer(observation_space, action_space, size=2_000, **kwargs):
+    """A buffer for the maze, whose rewards belong to the state a step starts from."""
+    kwargs = {"reward_timing": "start_state", **kwargs}
     return RelabellingReplayBuffer(size, observation_space, action_space, device="cpu", **kwargs)
 
 
@@ -222,7 +224,7 @@ def test_off_policy_algorithms_learn_on_the_relabelled_buffer(
         buffer_size=5_000,
         learning_starts=50,
         replay_buffer_class=RelabellingReplayBuffer,
-        replay_buffer_kwargs={"reward_head_kwargs": {"r_max": 1.0}},
+        replay_buffer_kwargs={"reward_head_kwargs": {"r_max": 1.0}, "reward_timing": "start_state"},
         seed=0,
         device="cpu",
     )
@@ -243,7 +245,10 @@ def test_save_and_load_replay_buffer_give_the_same_samples(tmp_path, source_tran
     samples the same relabelled batch for the same seed, and keeps learning.
     """
     settings = {"buffer_size": 5_000, "learning_starts": 50, "seed": 0, "device": "cpu"}
-    kwargs = {"replay_buffer_class": RelabellingReplayBuffer, "replay_buffer_kwargs": {"kappa": 0.1}}
+    kwargs = {
+        "replay_buffer_class": RelabellingReplayBuffer,
+        "replay_buffer_kwargs": {"kappa": 0.1, "reward_timing": "start_state"},
+    }
     model = DQN("MultiInputPolicy", gym.make(MAZE_ID, task=TARGET_TASK), **settings, **kwargs)
     model.replay_buffer.load_transitions(source_transitions)
     with one_torch_thread():
@@ -280,7 +285,11 @@ def greedy_reward_after_learning(seed, n_steps, source=None):
     env = gym.make(MAZE_ID, task=TARGET_TASK)
     buffer = {} if source is None else {"replay_buffer_class": RelabellingReplayBuffer}
     if source is not None:
-        buffer["replay_buffer_kwargs"] = {"reward_head": "tabular", "reward_head_kwargs": {"r_max": 1.0}}
+        buffer["replay_buffer_kwargs"] = {
+            "reward_head": "tabular",
+            "reward_head_kwargs": {"r_max": 1.0},
+            "reward_timing": "start_state",
+        }
     with one_torch_thread():
         model = DQN("MultiInputPolicy", env, seed=seed, device="cpu", **RELABELLING_DQN_SETTINGS, **buffer)
         if source is not None:
