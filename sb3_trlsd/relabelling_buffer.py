@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import replace
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 import torch as th
@@ -269,7 +269,24 @@ class RelabellingReplayBuffer(SharedDynamicsReplayBuffer):
         )
 
 
-def dqn_q_values(model: Any) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
+class QNetworkPolicy(Protocol):
+    """A policy with a Q-network of one output per action (SB3's ``DQNPolicy``)."""
+
+    @property
+    def q_net(self) -> th.nn.Module: ...
+
+
+class QNetworkModel(Protocol):
+    """An SB3 model whose policy has a ``q_net`` (SB3's ``DQN``)."""
+
+    @property
+    def device(self) -> th.device: ...
+
+    @property
+    def policy(self) -> QNetworkPolicy: ...
+
+
+def dqn_q_values(model: QNetworkModel) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
     """
     ``q_values(states, tasks)`` of a DQN (or any SB3 model whose policy has a ``q_net``) on a multi-task
     env's ``{"state", "task"}`` observations: the form ``greedy_expected_rewards`` and the experiments'
