@@ -92,6 +92,16 @@ def aggregate(rows: Sequence[Mapping[str, Any]], seed: int = 0) -> dict[str, Any
     }
 
 
+def paired_gain(rows: Sequence[Mapping[str, Any]], floor: Sequence[Mapping[str, Any]]) -> dict[str, float]:
+    """
+    Mean ± standard error of a method's score minus the random policy's on the same run (the same target
+    weight and seed): the scale of the rewards changes with the weights, and the pairing removes it.
+    """
+    gains = np.array([row["score"] - other["score"] for row, other in zip(rows, floor, strict=True)])
+    mean, se = mean_and_standard_error(gains)
+    return {"mean": float(mean), "se": float(se)}
+
+
 def reference_fraction(results: Mapping[str, Mapping[str, Any]]) -> float | None:
     """
     (TRLSD - random) / (reward given - random): how much of the reward-given level's gain over a random
@@ -191,6 +201,9 @@ def run_suite(
     )
     by_method = {method: rows[i * runs : (i + 1) * runs] for i, method in enumerate(methods)}
     results = {method: aggregate(method_rows, seed) for method, method_rows in by_method.items()}
+    if "random" in by_method:
+        for method, entry in results.items():
+            entry["gain_over_random"] = paired_gain(by_method[method], by_method["random"])
     out.mkdir(parents=True, exist_ok=True)
     name = f"mo_suite_{family.name}"
     write_rows(out / f"{name}.csv", by_method)
@@ -223,19 +236,23 @@ def run_suite(
 def suite_table(datas: Sequence[Mapping[str, Any]]) -> str:
     """
     The Markdown table of the suite's summaries: one row per family and method, mean ± standard error,
-    bootstrap interval, seconds per run and ms per online step.
+    bootstrap interval, gain over the random policy on the same runs, seconds per run and ms per online step.
     """
     lines = [
-        "| family | method | score (mean ± SE) | 95% bootstrap | s/run | ms/step | runs |",
-        "|---|---|---|---|---|---|---|",
+        "| family | method | score (mean ± SE) | 95% bootstrap | gain over random (paired) | s/run | ms/step "
+        "| runs |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for data in datas:
         family = data["parameters"]["family"]
         for method, entry in data["results"].items():
             low, high = entry["ci95"]
+            gain = entry.get("gain_over_random")
+            gain_cell = "" if gain is None else f"{gain['mean']:+.3f} ± {gain['se']:.3f}"
             lines.append(
                 f"| {family} | {data['parameters']['methods'][method]} | {entry['score']['mean']:.3f} ± "
-                f"{entry['score']['se']:.3f} | [{low:.3f}, {high:.3f}] | {entry['seconds_per_run']:.1f} | "
+                f"{entry['score']['se']:.3f} | [{low:.3f}, {high:.3f}] | {gain_cell} | "
+                f"{entry['seconds_per_run']:.1f} | "
                 f"{entry['online_ms_per_step']:.2f} | {entry['runs']} |"
             )
     return "\n".join(lines)
