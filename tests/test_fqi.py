@@ -8,6 +8,7 @@ import torch as th
 from sb3_trlsd import TRLSD
 from sb3_trlsd.arrays import GrowableColumns
 from sb3_trlsd.fqi import (
+    FQICapWarning,
     LinearFQISolver,
     fit_linear_fqi,
     fit_linear_fqi_runs,
@@ -329,12 +330,16 @@ def test_mlp_stopping_rule_stops_on_converged_targets_and_runs_to_the_cap_otherw
     assert 1 < converged.iterations < 2000
     _, again = fit_small_network(mdp, seed=4, network=network, epochs=0, tol=1e-6)
     assert again.iterations == 1
-    _, exact = fit_small_network(mdp, seed=4, network=network, epochs=0, tol=0.0, max_iterations=7)
-    assert exact.iterations == 7
-    _, capped = fit_small_network(mdp, seed=4, epochs=0, tol=1e-6, max_iterations=5)
+    with pytest.warns(FQICapWarning):
+        _, exact = fit_small_network(mdp, seed=4, network=network, epochs=0, tol=0.0, max_iterations=7)
+    assert exact.iterations == 7 and not exact.converged
+    with pytest.warns(FQICapWarning):
+        _, capped = fit_small_network(mdp, seed=4, epochs=0, tol=1e-6, max_iterations=5)
     assert capped.iterations == 5 and capped.bellman_residual > converged.bellman_residual
+    assert converged.converged and not capped.converged
 
 
+@pytest.mark.filterwarnings("ignore::sb3_trlsd.fqi.FQICapWarning")
 def test_mlp_fqi_is_deterministic_given_its_seeds(mdp):
     """Same initial weights, optimizer state and shuffling generator: the same network, weight for weight."""
     first, _ = fit_small_network(mdp, seed=1, epochs=2, max_iterations=3)
@@ -351,6 +356,7 @@ def test_an_unfitted_q_network_is_zero():
     assert th.equal(network(th.randn(5, 3)), th.zeros(5, 2))
 
 
+@pytest.mark.filterwarnings("ignore::sb3_trlsd.fqi.FQICapWarning")
 def test_mlp_policy_refits_after_save_and_load_as_it_would_have(tmp_path, source_transitions):
     """
     The MLP's warm start lives in the policy's state: its networks, Adam's moments and the minibatch
