@@ -89,9 +89,11 @@ def _is_count(value: object) -> bool:
 
 def _counts(name: str, n_per_dim: Counts, dims: int) -> tuple[int, ...]:
     """Counts as one integer >= 1 per dimension (a single integer for all)."""
-    if _is_count(n_per_dim):
-        return (int(n_per_dim),) * dims  # type: ignore[arg-type]
-    counts = tuple(n_per_dim) if isinstance(n_per_dim, (Sequence, np.ndarray)) else ()
+    counts: tuple[object, ...] = ()
+    if isinstance(n_per_dim, (int, np.integer)):
+        counts = (n_per_dim,) * dims
+    elif isinstance(n_per_dim, (Sequence, np.ndarray)) and not isinstance(n_per_dim, str):
+        counts = tuple(n_per_dim)
     if len(counts) != dims or not all(_is_count(n) for n in counts):
         raise ValueError(
             f"{name} must be an integer >= 1 or {dims} of them (one per state dimension), got {n_per_dim!r}"
@@ -178,11 +180,15 @@ def spacing_widths(counts: Sequence[int], overlap: float) -> tuple[float, ...]:
     :param overlap: the width in units of the spacing (> 0)
     :return: the widths, (d,)
     """
+    return tuple(_overlap(overlap) / int(n) for n in counts)
+
+
+def _overlap(overlap: float) -> float:
     if not (isinstance(overlap, (int, float, np.number)) and np.isfinite(overlap) and overlap > 0):
         raise ValueError(
             f"rbf_overlap (the width in units of the spacing) must be a number > 0, got {overlap!r}"
         )
-    return tuple(float(overlap) / int(n) for n in counts)
+    return float(overlap)
 
 
 def default_kernel_width(dims: int) -> float:
@@ -468,16 +474,20 @@ def make_feature_map(
             raise ValueError(
                 "rbf_overlap is the width of RBFs in their spacing; Fourier features take rbf_sigma"
             )
-        spacing_widths((1,), rbf_overlap)  # checks it
+        _overlap(rbf_overlap)
     if rbf_per_dim is None:
         rbf_per_dim = "cube" if new_defaults else 5
-    shape = rbf_per_dim if isinstance(rbf_per_dim, str) else None
-    if shape is not None and shape not in GRID_SHAPES:
-        raise ValueError(
-            f"rbf_per_dim must be an integer >= 1, one per dimension or one of {list(GRID_SHAPES)}, "
-            f"got {shape!r}"
-        )
-    counts = None if shape else _counts("rbf_per_dim", rbf_per_dim, dims)  # type: ignore[arg-type]
+    shape = "cube"
+    counts: tuple[int, ...] | None = None  # from the budget, in the shape, unless given
+    if isinstance(rbf_per_dim, str):
+        if rbf_per_dim not in GRID_SHAPES:
+            raise ValueError(
+                f"rbf_per_dim must be an integer >= 1, one per dimension or one of {list(GRID_SHAPES)}, "
+                f"got {rbf_per_dim!r}"
+            )
+        shape = rbf_per_dim
+    else:
+        counts = _counts("rbf_per_dim", rbf_per_dim, dims)
     fewest = 3 if kind == "adaptive" else 2  # centres per dimension of a grid of counts from the budget
     if kind in ("auto", "paper", "adaptive"):
         fits = fewest**dims <= budget if counts is None else math.prod(counts) <= budget
