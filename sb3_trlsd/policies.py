@@ -31,7 +31,7 @@ from sb3_trlsd.fqi import (
     linear_q_values,
     make_q_network,
 )
-from sb3_trlsd.observations import split_observation, state_space_of, task_count_of
+from sb3_trlsd.observations import check_action_space, split_observation, state_space_of, task_count_of
 
 __all__ = ["LinearPolicy", "MlpPolicy", "TaskQPolicy"]
 
@@ -49,10 +49,8 @@ class TaskQPolicy(BasePolicy):
 
     def __init__(self, observation_space: spaces.Space, action_space: spaces.Space, lr_schedule: Schedule):
         super().__init__(observation_space, action_space)
-        if not isinstance(action_space, spaces.Discrete):
-            raise ValueError(f"action_space must be Discrete, got {action_space}")
+        self.n_actions = check_action_space(action_space)
         self.state_space = state_space_of(observation_space)
-        self.n_actions = int(action_space.n)
         self.n_tasks = task_count_of(observation_space)
         self.lr_schedule = lr_schedule
 

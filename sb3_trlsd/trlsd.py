@@ -31,7 +31,7 @@ from sb3_trlsd.data import Transitions
 from sb3_trlsd.engine import Engine, Run
 from sb3_trlsd.feature_maps import FeatureMap
 from sb3_trlsd.fqi import DEFAULT_TOL, FQIResult
-from sb3_trlsd.observations import split_observation, state_space_of
+from sb3_trlsd.observations import StateBoxMonitor, check_action_space, split_observation, state_space_of
 from sb3_trlsd.persistence import BUFFER_ROWS, empty_rows, read_replay_buffer
 from sb3_trlsd.policies import LinearPolicy, MlpPolicy, TaskQPolicy
 from sb3_trlsd.q_functions import PolicyQFunctions
@@ -254,9 +254,8 @@ class TRLSD(OffPolicyAlgorithm):
         self.task_learners = {}
         self.reward_timing: str | None = None  # the config's, resolved on the env (see TRLSDConfig)
         # load() builds the model without an env first: the spaces are checked once they are known.
-        action_space = getattr(self, "action_space", None)
-        if action_space is not None and not isinstance(action_space, spaces.Discrete):
-            raise ValueError(f"TRLSD needs a Discrete action space (env), got {action_space}")
+        if getattr(self, "action_space", None) is not None:
+            check_action_space(self.action_space)
         if getattr(self, "observation_space", None) is not None:
             state_space_of(self.observation_space)
         if _init_setup_model:
@@ -291,6 +290,7 @@ class TRLSD(OffPolicyAlgorithm):
         super()._setup_model()
         self._buffer_rows = empty_rows()  # the buffer's rows, during save and load only
         self._warned_unfitted: set[int] = set()
+        self._state_box = StateBoxMonitor(self._builder.low, self._builder.high)
         self.engine = self._new_engine()
 
     def _new_engine(self) -> Engine:
@@ -353,6 +353,7 @@ class TRLSD(OffPolicyAlgorithm):
             (the paper's setting) uses them for the dynamics only
         """
         transitions = data if isinstance(data, Transitions) else Transitions.load(data)
+        self._state_box.check(np.concatenate([transitions.states, transitions.next_states]), stacklevel=2)
         self.replay_buffer.add_transitions(transitions, keep_rewards=keep_rewards)
         if keep_rewards:
             rewarded = transitions.next_states if self.reward_timing == "next_state" else transitions.states
@@ -385,6 +386,7 @@ class TRLSD(OffPolicyAlgorithm):
         rows = (buffer.pos - np.arange(n_rows, 0, -1)) % buffer.buffer_size
         tasks = buffer.tasks[rows, 0]
         timeouts = buffer.timeouts[rows, 0].astype(bool)
+        self._state_box.check(buffer.next_observations[rows, 0], stacklevel=4)
         self.engine.observe(
             np.zeros(n_rows, dtype=np.int64),
             buffer.observations[rows, 0],
@@ -417,7 +419,8 @@ class TRLSD(OffPolicyAlgorithm):
         :param obs: one observation of the env (not batched)
         :return: the action
         """
-        states, tasks = split_observation(obs, self.replay_buffer.obs_shape[0])
+        states, tasks = split_observation(obs, self.replay_buffer.obs_shape[0], require_finite=True)
+        self._state_box.check(states, stacklevel=2)
         return int(self.engine.act(np.zeros(1, dtype=np.int64), states[:1], tasks[:1])[0])
 
     def add_online_transition(
@@ -497,7 +500,7 @@ class TRLSD(OffPolicyAlgorithm):
     # ------------------------------------------------------------- save and load
     def _excluded_save_params(self) -> list[str]:
         # Rebuilt by _setup_model, or not saved on purpose (a reward_fn is often an env's method).
-        derived = ["features", "engine", "_builder", "_warned_unfitted", "reward_fn"]
+        derived = ["features", "engine", "_builder", "_state_box", "_warned_unfitted", "reward_fn"]
         return [*super()._excluded_save_params(), *derived]
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
@@ -637,7 +640,8 @@ class TRLSD(OffPolicyAlgorithm):
         deterministic: bool = False,
     ) -> tuple[np.ndarray, tuple[np.ndarray, ...] | None]:
         """SB3's ``predict``; a task whose Q-function was never fitted is warned about, once per task."""
-        _, tasks = split_observation(observation, self.replay_buffer.obs_shape[0])
+        states, tasks = split_observation(observation, self.replay_buffer.obs_shape[0], require_finite=True)
+        self._state_box.check(states, stacklevel=2)
         for task in np.unique(tasks):
             learner = self.task_learners.get(int(task))
             if (learner is None or not learner.fitted) and int(task) not in self._warned_unfitted:

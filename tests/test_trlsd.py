@@ -1,14 +1,18 @@
 """TRLSD as an SB3 algorithm: transfer on the maze, refit trigger, SB3 conventions, errors."""
 
+import warnings
+
 import gymnasium as gym
 import numpy as np
 import pytest
+from gymnasium import spaces
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.env_util import make_vec_env
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 from tensorboard.backend.event_processing.event_file_loader import EventFileLoader
 
 from sb3_trlsd import TRLSD, Transitions
+from sb3_trlsd.observations import StateOutsideBoxWarning
 from sb3_trlsd_envs.evaluation import greedy_expected_rewards
 from sb3_trlsd_envs.maze_tasks import N_TASKS
 from tests.conftest import MAZE_ID
@@ -278,7 +282,7 @@ def test_bad_policy_and_spaces_are_refused():
     """An unknown policy, a continuous action space or an observation without a state Box is refused."""
     with pytest.raises(ValueError, match="policy must be one of"):
         TRLSD("CnnPolicy", gym.make(MAZE_ID))
-    with pytest.raises(ValueError, match="Discrete action space"):
+    with pytest.raises(ValueError, match="action_space must be Discrete"):
         TRLSD("LinearPolicy", "Pendulum-v1")
     with pytest.raises(ValueError, match="observation_space"):
         TRLSD("LinearPolicy", "FrozenLake-v1")
@@ -333,3 +337,41 @@ def test_several_envs_feed_one_buffer_and_one_learner_per_task(source_transition
     loaded.learn(total_timesteps=100, reset_num_timesteps=False)
     assert loaded.num_timesteps == 300 and loaded.task_learner(6).head.n_samples == 300
     assert loaded.replay_buffer.size() == n_source + 300
+
+
+def test_predict_and_act_refuse_a_state_that_is_not_finite():
+    """A NaN state has no greedy action: predict used to return action 0 for it."""
+    env = gym.make(MAZE_ID, task=(3, 3))
+    model = TRLSD("LinearPolicy", env)
+    obs, _ = env.reset(seed=0)
+    bad = {"state": np.array([np.nan, 1.0], dtype=np.float32), "task": obs["task"]}
+    for call in (model.predict, model.act):
+        with pytest.raises(ValueError, match=r"states must be finite: 1 of 1 state\(s\) have nan"):
+            call(bad)
+
+
+def test_states_outside_the_box_are_warned_of_once():
+    """Features and similarities are taken relative to the box: a state far outside it is warned of, once,
+    whether it reaches the model through predict or through learn."""
+    env = gym.make(MAZE_ID, task=(3, 3))
+    model = TRLSD("LinearPolicy", env)
+    obs, _ = env.reset(seed=0)
+    outside = {"state": np.array([7.0, 1.0], dtype=np.float32), "task": obs["task"]}
+    with pytest.warns(StateOutsideBoxWarning, match=r"dimension 0: 7 \(box \[0, 5\]\)"):
+        model.predict(outside)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", StateOutsideBoxWarning)
+        model.predict(outside)
+    shifted = gym.wrappers.TransformObservation(
+        gym.make(MAZE_ID, task=(3, 3)), lambda o: {**o, "state": o["state"] + 10}, env.observation_space
+    )
+    with pytest.warns(StateOutsideBoxWarning) as caught:
+        TRLSD("LinearPolicy", shifted).learn(20)
+    assert sum(issubclass(w.category, StateOutsideBoxWarning) for w in caught) == 1
+
+
+def test_actions_and_tasks_not_numbered_from_0_are_refused_when_the_model_is_made():
+    env = gym.make(MAZE_ID, task=(3, 3))
+    shifted = gym.wrappers.TransformAction(env, lambda a: a - 1, spaces.Discrete(4, start=1))
+    with pytest.raises(ValueError, match=r"number its actions from 0, got Discrete\(4, start=1\)"):
+        TRLSD("LinearPolicy", shifted)
