@@ -4,11 +4,14 @@ signal) of a real ``reproduce`` process, errors while writing.
 """
 
 import os
+import select
 import signal
 import subprocess
 import sys
+import tempfile
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from contextlib import suppress
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -29,20 +32,27 @@ multitask.TURNS, multitask.EPISODE_STEPS = {TURNS}, {EPISODE_STEPS}
 from sb3_trlsd.cli import main
 sys.exit(main(sys.argv[1:]))
 """
-# A process holding a child process in ``stopped_by_signals``, slow to clean up after the first signal.
-SLOW_CLEAN_UP = """
-import multiprocessing, time
+# A process holding a child process in ``stopped_by_signals``, whose clean-up after the first signal never
+# ends. Neither it nor its child ends on its own (no sleep that a slow machine could outlast): only a kill
+# ends them, so a second signal that waited for the clean-up, or left the child, cannot pass unseen.
+ENDLESS_CLEAN_UP = """
+import multiprocessing, signal
 from sb3_trlsd.cli import stopped_by_signals
-child = multiprocessing.get_context("fork").Process(target=time.sleep, args=(60,))
+child = multiprocessing.get_context("fork").Process(target=signal.pause)
 child.start()
 with stopped_by_signals():
     try:
         print("ready", flush=True)
-        time.sleep(60)
+        while True:
+            signal.pause()
     except KeyboardInterrupt:
         print("cleaning up", flush=True)
-        time.sleep(60)
+        while True:
+            signal.pause()
 """
+# Bound on each wait for a state (a run kept, a line printed, a process or process group ended), for a test
+# that would otherwise hang: none is reached unless something is broken, however loaded the machine.
+HANG_SECONDS = 300
 needs_proc = pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads processes from /proc")
 
 
@@ -150,12 +160,42 @@ def live_processes_of_group(group: int) -> list[int]:
     return [pid for pid, process in live_processes().items() if process.group == group]
 
 
+def wait_for(condition: Callable[[], object], seconds: float) -> bool:
+    """Whether ``condition`` holds, polled until it does or ``seconds`` have passed."""
+    deadline = time.monotonic() + seconds
+    while not condition() and time.monotonic() < deadline:
+        time.sleep(0.02)
+    return bool(condition())
+
+
+def wait_for_exit(process: subprocess.Popen, since: str) -> int:
+    """The exit status of ``process`` once it has ended; a failure if it still runs after ``HANG_SECONDS``."""
+    try:
+        return process.wait(HANG_SECONDS)
+    except subprocess.TimeoutExpired:
+        pytest.fail(f"the process still ran {HANG_SECONDS} s after {since}")
+
+
+def next_line(stream) -> bytes:
+    """
+    The next line a process writes to ``stream`` (unbuffered: ``bufsize=0``, so nothing beyond the line is
+    read ahead); b"" if the process closed it; a failure if nothing comes in ``HANG_SECONDS``.
+    """
+    if not select.select([stream], [], [], HANG_SECONDS)[0]:
+        pytest.fail(f"the process wrote nothing in {HANG_SECONDS} s")
+    return stream.readline()
+
+
+def contents(file) -> str:
+    """All that was written to the open file ``file``."""
+    file.seek(0)
+    return file.read()
+
+
 def assert_group_ends(group: int) -> None:
-    """Every process of ``group`` (the command, its workers, their trackers) ends within 5 s."""
-    deadline = time.monotonic() + 5
-    while live_processes_of_group(group) and time.monotonic() < deadline:
-        time.sleep(0.05)
-    assert not live_processes_of_group(group)
+    """Every process of ``group`` (the command, its workers, their trackers) ends."""
+    ended = wait_for(lambda: not live_processes_of_group(group), HANG_SECONDS)
+    assert ended, f"processes of the group still run {HANG_SECONDS} s on: {live_processes_of_group(group)}"
 
 
 def interrupt_reproduce(
@@ -169,33 +209,45 @@ def interrupt_reproduce(
     Start a tiny ``reproduce fig8`` in a new process group, send ``signum`` once its first run is kept (to
     the whole group, as Ctrl-C in a terminal does, or to the command alone, as ``kill``).
 
+    Every wait is for a state, bounded only by ``HANG_SECONDS``. No worker of the command may outlive it:
+    when it has exited, only its resource trackers (which end once the command's pipe to them closes) may
+    still be alive, and then its whole group must end. Waiting alone would not do: loky's idle workers end
+    on their own after 300 s.
+
     :param options: the command's options besides its sizes and ``--out`` (default: 2 loky workers)
     :param env: the command's environment (None: this process's)
-    :return: the exit status and stderr, the command having ended within 10 s of the signal
+    :return: the exit status and stderr of the command, which has ended
     """
     command = [sys.executable, "-c", TINY_SB3_TRLSD, "reproduce", "fig8", "--runs", str(RUNS), "--seed", "0"]
-    process = subprocess.Popen(
-        [*command, "--out", str(out), *options],
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.PIPE,
-        text=True,
-        env=env,
-        start_new_session=True,  # its own group: the workers can be found, and Ctrl-C imitated
-    )
-    try:
-        deadline = time.monotonic() + 120
-        while not list(out.glob("runs/*.npz")):
-            assert process.poll() is None, process.communicate()[1]
-            assert time.monotonic() < deadline, "no run finished in 120 s"
-            time.sleep(0.02)
-        (os.killpg if to_group else os.kill)(process.pid, signum)
-        _, error = process.communicate(timeout=10)
-    finally:
-        if process.poll() is None:
-            os.killpg(process.pid, signal.SIGKILL)
+    # stderr in a file, not a pipe: the workers share it, and the end of the command must not wait for them.
+    with tempfile.TemporaryFile("w+") as stderr:
+        process = subprocess.Popen(
+            [*command, "--out", str(out), *options],
+            stdout=subprocess.DEVNULL,
+            stderr=stderr,
+            text=True,
+            env=env,
+            start_new_session=True,  # its own group: the workers can be found, and Ctrl-C imitated
+        )
+        try:
+            kept = wait_for(lambda: list(out.glob("runs/*.npz")) or process.poll() is not None, HANG_SECONDS)
+            assert process.poll() is None, f"it ended before any signal: {contents(stderr)}"
+            assert kept, f"no run kept in {HANG_SECONDS} s"
+            trackers = {
+                pid
+                for pid, running in live_processes().items()
+                if running.group == process.pid and "resource_tracker" in running.command
+            }
+            (os.killpg if to_group else os.kill)(process.pid, signum)
+            status = wait_for_exit(process, since=f"signal {signum}")
+            outlived = set(live_processes_of_group(process.pid)) - trackers
+            assert not outlived, f"processes of the command outlived it: {outlived}"
+            assert_group_ends(process.pid)
+        finally:
+            with suppress(ProcessLookupError):  # a failure's leftovers: none outlives the test
+                os.killpg(process.pid, signal.SIGKILL)
             process.wait()
-    assert_group_ends(process.pid)
-    return process.returncode, error
+        return status, contents(stderr)
 
 
 def assert_says_what_it_kept(error: str, out: Path) -> int:
@@ -213,8 +265,8 @@ def assert_says_what_it_kept(error: str, out: Path) -> int:
 def test_ctrl_c_stops_reproduce_and_the_same_command_resumes(tmp_path, monkeypatch, capsys):
     """
     Before, one Ctrl-C left every queued run running (none kept) and printed a traceback; a second hung.
-    Now: status 130 within 10 s, the finished runs kept, no worker left, and the rerun runs only the rest
-    and writes the CSV an uninterrupted run writes.
+    Now: status 130 before the runs are done, the finished runs kept, no worker left, and the rerun runs
+    only the rest and writes the CSV an uninterrupted run writes.
     """
     out = tmp_path / "interrupted"
     status, error = interrupt_reproduce(out, signal.SIGINT, to_group=True)
@@ -243,24 +295,27 @@ def test_sigterm_stops_reproduce_without_leaving_workers(tmp_path):
 
 @needs_proc
 def test_a_second_signal_exits_at_once_and_kills_the_children():
-    """The first signal's clean-up may be slow: a second one must not wait for it, nor orphan a child."""
+    """
+    The first signal's clean-up may be slow: a second one must not wait for it, nor orphan a child. Here the
+    clean-up and the child never end on their own: the process ends only if the second signal ends it, and
+    its group only if the child is killed.
+    """
     process = subprocess.Popen(
-        [sys.executable, "-c", SLOW_CLEAN_UP],
+        [sys.executable, "-c", ENDLESS_CLEAN_UP],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
-        text=True,
+        bufsize=0,  # lines read as they come, with select
         start_new_session=True,
     )
     try:
-        assert process.stdout.readline() == "ready\n"
+        assert next_line(process.stdout) == b"ready\n"
         process.send_signal(signal.SIGINT)
-        assert process.stdout.readline() == "cleaning up\n"
+        assert next_line(process.stdout) == b"cleaning up\n"
         process.send_signal(signal.SIGTERM)
-        process.wait(timeout=2)
+        assert wait_for_exit(process, since="the second signal") == 128 + signal.SIGTERM
+        assert_group_ends(process.pid)
     finally:
-        if process.poll() is None:
+        with suppress(ProcessLookupError):  # a failure's leftovers: none outlives the test
             os.killpg(process.pid, signal.SIGKILL)
-            process.wait()
-    assert process.returncode == 128 + signal.SIGTERM
-    assert "interrupted again, stopped at once" in process.stderr.read()
-    assert_group_ends(process.pid)
+        process.wait()
+    assert b"interrupted again, stopped at once" in process.stderr.read()
