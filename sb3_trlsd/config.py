@@ -23,8 +23,14 @@ from typing import Any
 import numpy as np
 from gymnasium import spaces
 
-from sb3_trlsd.feature_maps import FEATURE_MAPS, FeatureMap, default_kernel_width, make_feature_map
-from sb3_trlsd.fqi import DEFAULT_TOL
+from sb3_trlsd.feature_maps import (
+    FEATURE_MAPS,
+    GRID_SHAPES,
+    FeatureMap,
+    default_kernel_width,
+    make_feature_map,
+)
+from sb3_trlsd.fqi import DEFAULT_TOL, STOP_RULES
 from sb3_trlsd.observations import state_space_of, task_count_of
 from sb3_trlsd.reward_heads import (
     CONFIDENCE_BOUND_HEAD_NAMES,
@@ -47,6 +53,7 @@ SIMILARITY_HEAD_NAMES = ("ridge", "bernstein")
 FEATURES_SIMILARITY_SIGMA = 0.2  # eq. 7 compares feature vectors, whose scale is the features' own
 
 Widths = float | Sequence[float] | None
+Counts = int | Sequence[int] | str | None
 Bounds = tuple[Sequence[float], Sequence[float]]
 
 
@@ -117,10 +124,18 @@ class TRLSDConfig:
     :param update_ratio: refit a task when the CI at an encountered state has been divided by this (> 1)
     :param first_fit: when a task's Q is first fitted, one of ``FIRST_FIT_RULES``
     :param fqi_max_iterations: cap on Fitted-Q iterations per refit (None: the Q-function's own default)
-    :param fqi_tol: Fitted-Q stops when the parameters move by less than this, relative to their scale
+    :param fqi_tol: Fitted-Q's relative stopping tolerance (see ``fqi_stop``)
+    :param fqi_stop: Fitted-Q's stopping rule, one of ``STOP_RULES``: ``"targets"`` (the Bellman targets move
+        by less than ``fqi_tol`` of the return scale) or ``"theta"`` (the parameters move by less than
+        ``fqi_tol`` of their scale)
     :param feature_map: Phi: a name of ``FEATURE_MAPS`` or a ``FeatureMap``
-    :param rbf_per_dim: RBF centres per state dimension of the grid
-    :param rbf_sigma: width of the features, a fraction of the state box (None: the feature map's default)
+    :param rbf_per_dim: RBF centres per state dimension: one integer, one per dimension, or ``"cube"`` /
+        ``"box"`` for counts from the box under ``max_features`` (None: the feature map's default)
+    :param rbf_sigma: width of the features, a fraction of the state box, one or one per dimension (None:
+        ``rbf_overlap`` times the spacing of the centres)
+    :param rbf_overlap: width of the RBFs in spacings of their centres, when ``rbf_sigma`` is None (None: the
+        feature map's default)
+    :param max_features: the feature map's budget of features (None: its default)
     :param fourier_features: the number of Fourier features (None: the feature map's default)
     :param state_bounds: ``(low, high)`` of the states for an unbounded Box (None: the Box's, finite)
     :param reward_head_kwargs: extra arguments of the named reward heads
@@ -137,9 +152,12 @@ class TRLSDConfig:
     first_fit: str = "first_step"
     fqi_max_iterations: int | None = None
     fqi_tol: float = DEFAULT_TOL
+    fqi_stop: str = "targets"
     feature_map: str | FeatureMap = "auto"
-    rbf_per_dim: int = 5
+    rbf_per_dim: Counts = None
     rbf_sigma: Widths = None
+    rbf_overlap: float | None = None
+    max_features: int | None = None
     fourier_features: int | None = None
     state_bounds: Bounds | None = None
     reward_head_kwargs: Mapping[str, Any] = field(default_factory=dict)
@@ -172,7 +190,28 @@ class TRLSDConfig:
         _require(
             _finite("fqi_tol", self.fqi_tol) >= 0, "fqi_tol", ">= 0 (a relative tolerance)", self.fqi_tol
         )
-        _integer("rbf_per_dim", self.rbf_per_dim, 1)
+        counts = self.rbf_per_dim
+        if isinstance(counts, str):
+            _require(
+                counts in GRID_SHAPES,
+                "rbf_per_dim",
+                f"an integer >= 1, one per dimension or one of {list(GRID_SHAPES)}",
+                counts,
+            )
+        elif counts is not None:
+            for count in np.atleast_1d(np.asarray(counts, dtype=object)):
+                _integer("rbf_per_dim", count, 1)
+        _integer("max_features", self.max_features, 1, none_allowed=True)
+        if self.rbf_overlap is not None:
+            _require(
+                _finite("rbf_overlap", self.rbf_overlap) > 0, "rbf_overlap", "a number > 0", self.rbf_overlap
+            )
+            if self.rbf_sigma is not None:
+                raise ValueError(
+                    "give rbf_sigma (a fraction of the box) or rbf_overlap (of the spacing), not both"
+                )
+        if self.fqi_stop not in STOP_RULES:
+            raise ValueError(f"fqi_stop must be one of {list(STOP_RULES)}, got {self.fqi_stop!r}")
         _integer("fqi_max_iterations", self.fqi_max_iterations, 1, none_allowed=True)
         if self.similarity not in SIMILARITIES:
             raise ValueError(f"similarity must be one of {list(SIMILARITIES)}, got {self.similarity!r}")
@@ -208,11 +247,14 @@ class TRLSDConfig:
             "first_fit": self.first_fit,
             "fqi_max_iterations": self.fqi_max_iterations,
             "fqi_tol": self.fqi_tol,
+            "fqi_stop": self.fqi_stop,
             "feature_map": self.feature_map
             if isinstance(self.feature_map, str)
             else type(self.feature_map).__name__,
             "rbf_per_dim": self.rbf_per_dim,
             "rbf_sigma": self.rbf_sigma,
+            "rbf_overlap": self.rbf_overlap,
+            "max_features": self.max_features,
             "reward_timing": self.reward_timing,
         }
         return {
@@ -310,6 +352,8 @@ class TRLSDConfig:
                     high,
                     rbf_per_dim=self.rbf_per_dim,
                     rbf_sigma=self.rbf_sigma,
+                    rbf_overlap=self.rbf_overlap,
+                    max_features=self.max_features,
                     fourier_features=self.fourier_features,
                     seed=0 if seed is None else seed,
                     n_actions=n_actions if linear_q else 0,

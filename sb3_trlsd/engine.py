@@ -83,6 +83,7 @@ class Engine:
     :param gamma: discount factor of the Fitted-Q refits
     :param max_iterations: cap on the Fitted-Q iterations of a refit (None: the Q-functions' default)
     :param tol: relative stopping tolerance of the Fitted-Q iterations
+    :param stop_rule: the Fitted-Q iterations' stopping rule, one of ``sb3_trlsd.fqi.STOP_RULES``
     :param on_refit: called after each refit (e.g. to log it)
     """
 
@@ -94,6 +95,7 @@ class Engine:
         gamma: float,
         max_iterations: int | None,
         tol: float,
+        stop_rule: str,
         on_refit: RefitHook | None = None,
     ):
         self.runs = list(runs)
@@ -102,6 +104,7 @@ class Engine:
         self.gamma = gamma
         self.max_iterations = q_functions.default_max_iterations if max_iterations is None else max_iterations
         self.tol = tol
+        self.stop_rule = stop_rule
         self.on_refit = on_refit
 
     def learner(self, run: int, task: int) -> TaskLearner:
@@ -215,7 +218,9 @@ class Engine:
             self.runs[run].write_pending()
         buffers = [run.buffer for run in self.runs]
         rewards = [self.learner(run, task).relabelled_rewards(buffers[run]) for run, task in pairs]
-        results = self.q_functions.fit(pairs, buffers, rewards, self.gamma, self.max_iterations, self.tol)
+        results = self.q_functions.fit(
+            pairs, buffers, rewards, self.gamma, self.max_iterations, self.tol, self.stop_rule
+        )
         for (run, task), result, task_rewards in zip(pairs, results, rewards, strict=True):
             learner = self.learner(run, task)
             learner.refitted(n_rows=self.runs[run].n_rows)

@@ -19,10 +19,10 @@ the defaults mean the same thing on any env. Counts of centres and widths may di
   Farahmand et al. 2009). With a few hundred features, they approximate the kernel too coarsely for a
   greedy policy from 4 dimensions on (``benchmarks/bench_feature_maps.py``).
 
-``make_feature_map`` builds them by name: ``"auto"`` and ``"paper"`` (the grid while it has at most
-``MAX_GRID_FEATURES`` centres, each of a fifth of the spacing wide as on the maze, else Fourier features),
-``"adaptive"`` (the grid, widths of ``ADAPTIVE_OVERLAP`` spacings, while it has 3 centres a dimension
-within ``ADAPTIVE_MAX_FEATURES``; else ``AdditiveRBF``) or one map; ``grid_counts`` chooses counts per
+``make_feature_map`` builds them by name: ``"auto"`` (the grid, widths of ``ADAPTIVE_OVERLAP`` spacings,
+while it has 3 centres a dimension within ``ADAPTIVE_MAX_FEATURES``; else ``AdditiveRBF``), ``"paper"``
+(the grid while it has at most ``MAX_GRID_FEATURES`` centres, each of a fifth of the spacing wide as on
+the maze, else Fourier features) or one map; ``grid_counts`` chooses counts per
 dimension under a budget, ``spacing_widths`` widths from the spacing. It refuses, before allocating, any
 map whose Gram matrices would take more than ``MEMORY_BOUND_BYTES``.
 """
@@ -58,14 +58,14 @@ __all__ = [
     "spacing_widths",
 ]
 
-FEATURE_MAPS = ("auto", "paper", "rbf", "fourier", "additive", "adaptive")
+FEATURE_MAPS = ("auto", "paper", "rbf", "fourier", "additive")
 GRID_SHAPES = ("cube", "box")
-MAX_GRID_FEATURES = 125  # "auto" keeps the RBF grid up to 5 ** 3 centres
+MAX_GRID_FEATURES = 125  # "paper" keeps the RBF grid up to 5 ** 3 centres
 FOURIER_FEATURES_PER_DIM = 50
 MEMORY_BOUND_BYTES = 2**30  # the Gram matrices (and their inverses) of a feature map, at most 1 GiB
 PAPER_OVERLAP = 0.2  # the paper's RBF width on the maze, 0.2 maze units, is a fifth of its grid's spacing
-ADAPTIVE_OVERLAP = 1.5  # "adaptive" and "additive": widths of 1.5 spacings (benchmarks/bench_feature_maps.py)
-ADAPTIVE_MAX_FEATURES = 150  # "adaptive": the grid while it has at least 3 centres a dimension within this
+ADAPTIVE_OVERLAP = 1.5  # "auto" and "additive": widths of 1.5 spacings (benchmarks/bench_feature_maps.py)
+ADAPTIVE_MAX_FEATURES = 150  # "auto": the grid while it has at least 3 centres a dimension within this
 ADDITIVE_PER_DIM = 8  # "additive": Gaussians per dimension, while they fit the budget
 Widths = float | Sequence[float] | np.ndarray
 Counts = int | Sequence[int]
@@ -431,25 +431,24 @@ def make_feature_map(
     refused before it is built if its Gram matrices would not fit (``check_feature_memory``).
 
     :param kind: ``"rbf"`` (an ``RBFGrid``), ``"fourier"`` (``RandomFourierFeatures``), ``"additive"``
-        (``AdditiveRBF``), ``"auto"`` and ``"paper"`` (the grid while it has at most ``max_features``
-        centres, else Fourier features) or ``"adaptive"`` (a grid of ``ADAPTIVE_OVERLAP`` widths, counts from
-        the box under ``max_features``, while every dimension gets at least 3 centres; else ``AdditiveRBF``)
+        (``AdditiveRBF``), ``"paper"`` (the grid while it has at most ``max_features`` centres, else Fourier
+        features) or ``"auto"`` (a grid of ``ADAPTIVE_OVERLAP`` widths, counts from the box under
+        ``max_features``, while every dimension gets at least 3 centres; else ``AdditiveRBF``)
     :param low: lower corner of the state box, (d,)
     :param high: upper corner, (d,)
     :param rbf_per_dim: centres per dimension of the grid (or Gaussians per dimension of ``"additive"``):
         one integer, one per dimension, or ``"cube"`` / ``"box"`` for counts from ``grid_counts`` under
         ``max_features`` (the same in every dimension / proportional to the box's sides in its units).
-        None: 5 for ``"rbf"``, ``"auto"`` and ``"paper"``, ``"cube"`` for ``"additive"`` and ``"adaptive"``
-        (``"additive"``: ``ADDITIVE_PER_DIM`` a dimension unless ``max_features`` is given)
+        None: 5 for ``"rbf"`` and ``"paper"``, ``"cube"`` for ``"additive"`` and ``"auto"`` (``"additive"``:
+        ``ADDITIVE_PER_DIM`` a dimension unless ``max_features`` is given)
     :param rbf_sigma: width as a fraction of the box, one or one per dimension; None: ``rbf_overlap`` times
         the spacing of the centres for the RBF maps, ``default_kernel_width(d)`` for Fourier features
     :param rbf_overlap: width of the RBFs in units of the spacing of their centres (``spacing_widths``),
-        when ``rbf_sigma`` is None; None: ``PAPER_OVERLAP`` (0.2, the paper's) for ``"rbf"``, ``"auto"`` and
-        ``"paper"``, ``ADAPTIVE_OVERLAP`` for ``"additive"`` and ``"adaptive"``
+        when ``rbf_sigma`` is None; None: ``PAPER_OVERLAP`` (0.2, the paper's) for ``"rbf"`` and ``"paper"``,
+        ``ADAPTIVE_OVERLAP`` for ``"additive"`` and ``"auto"``
     :param max_features: the budget of features of counts from ``grid_counts`` and of the choice of
-        ``"auto"``, ``"paper"`` and ``"adaptive"``, and the cap of the default number of Fourier features;
-        None: ``MAX_GRID_FEATURES`` (125), ``ADAPTIVE_MAX_FEATURES`` (150) for ``"additive"`` and
-        ``"adaptive"``
+        ``"auto"`` and ``"paper"``, and the cap of the default number of Fourier features; None:
+        ``MAX_GRID_FEATURES`` (125), ``ADAPTIVE_MAX_FEATURES`` (150) for ``"additive"`` and ``"auto"``
     :param fourier_features: m of the Fourier features; None: ``FOURIER_FEATURES_PER_DIM`` * d (at most
         ``max_features`` when it is given)
     :param seed: seed of the Fourier features
@@ -461,7 +460,7 @@ def make_feature_map(
         raise ValueError(f"feature_map must be one of {list(FEATURE_MAPS)} or a FeatureMap, got {kind!r}")
     low_t, high_t = _box(low, high)
     dims = len(low_t)
-    new_defaults = kind in ("additive", "adaptive")
+    new_defaults = kind in ("additive", "auto")
     if max_features is not None and not _is_count(max_features):
         raise ValueError(f"max_features must be an integer >= 1 or None, got {max_features!r}")
     budget = max_features or (ADAPTIVE_MAX_FEATURES if new_defaults else MAX_GRID_FEATURES)
@@ -488,10 +487,10 @@ def make_feature_map(
         shape = rbf_per_dim
     else:
         counts = _counts("rbf_per_dim", rbf_per_dim, dims)
-    fewest = 3 if kind == "adaptive" else 2  # centres per dimension of a grid of counts from the budget
-    if kind in ("auto", "paper", "adaptive"):
+    fewest = 3 if kind == "auto" else 2  # centres per dimension of a grid of counts from the budget
+    if kind in ("auto", "paper"):
         fits = fewest**dims <= budget if counts is None else math.prod(counts) <= budget
-        kind = "rbf" if fits else "additive" if kind == "adaptive" else "fourier"
+        kind = "rbf" if fits else "additive" if kind == "auto" else "fourier"
     if kind == "fourier":
         return _fourier_features(
             low_t, high_t, rbf_sigma, fourier_features, max_features, seed, n_actions, n_tasks

@@ -25,6 +25,7 @@ from sb3_trlsd.fqi import (
     DEFAULT_LINEAR_ITERATIONS,
     DEFAULT_MLP_ITERATIONS,
     DEFAULT_RIDGE,
+    DEFAULT_STOP_RULE,
     DEFAULT_TOL,
     FQIResult,
     fit_mlp_fqi,
@@ -88,6 +89,7 @@ class TaskQPolicy(BasePolicy):
         gamma: float,
         max_iterations: int | None = None,
         tol: float = DEFAULT_TOL,
+        stop_rule: str = DEFAULT_STOP_RULE,
     ) -> FQIResult:
         """
         Fit Q_task on the rows with the rewards of ``task`` (R~_task at each row's start state, in the rows'
@@ -99,10 +101,11 @@ class TaskQPolicy(BasePolicy):
         :param gamma: discount factor
         :param max_iterations: cap on the fitted iterations (None: ``default_max_iterations``)
         :param tol: relative stopping tolerance of the fitted iterations
+        :param stop_rule: their stopping rule, one of ``sb3_trlsd.fqi.STOP_RULES``
         :return: iterations and final Bellman residual
         """
         iterations = self.default_max_iterations if max_iterations is None else max_iterations
-        return self._fit(task, rows, np.asarray(rewards, dtype=np.float64), gamma, iterations, tol)
+        return self._fit(task, rows, np.asarray(rewards, dtype=np.float64), gamma, iterations, tol, stop_rule)
 
     @abstractmethod
     def new_fit_rows(self) -> FitRows:
@@ -113,7 +116,14 @@ class TaskQPolicy(BasePolicy):
 
     @abstractmethod
     def _fit(
-        self, task: int, rows: FitRows, rewards: np.ndarray, gamma: float, max_iterations: int, tol: float
+        self,
+        task: int,
+        rows: FitRows,
+        rewards: np.ndarray,
+        gamma: float,
+        max_iterations: int,
+        tol: float,
+        stop_rule: str,
     ) -> FQIResult: ...
 
 
@@ -175,7 +185,14 @@ class LinearPolicy(TaskQPolicy):
         )
 
     def _fit(
-        self, task: int, rows: FitRows, rewards: np.ndarray, gamma: float, max_iterations: int, tol: float
+        self,
+        task: int,
+        rows: FitRows,
+        rewards: np.ndarray,
+        gamma: float,
+        max_iterations: int,
+        tol: float,
+        stop_rule: str,
     ) -> FQIResult:
         assert isinstance(rows, LinearFitRows)
         result = rows.solver.fit(
@@ -184,6 +201,7 @@ class LinearPolicy(TaskQPolicy):
             theta0=self.theta[task].cpu().numpy(),
             max_iterations=max_iterations,
             tol=tol,
+            stop_rule=stop_rule,
         )
         assert result.theta is not None
         self.theta[task] = th.as_tensor(result.theta, device=self.theta.device)
@@ -277,7 +295,14 @@ class MlpPolicy(TaskQPolicy):
         return TransitionRows(self._inputs, self.state_space.shape[0])
 
     def _fit(
-        self, task: int, rows: FitRows, rewards: np.ndarray, gamma: float, max_iterations: int, tol: float
+        self,
+        task: int,
+        rows: FitRows,
+        rewards: np.ndarray,
+        gamma: float,
+        max_iterations: int,
+        tol: float,
+        stop_rule: str,
     ) -> FQIResult:
         assert isinstance(rows, TransitionRows)
         inputs, actions, next_inputs, terminated = rows.tensors()
@@ -296,4 +321,5 @@ class MlpPolicy(TaskQPolicy):
             batch_size=self.batch_size,
             ridge=self.fqi_ridge,
             generator=self.generator,
+            stop_rule=stop_rule,
         )

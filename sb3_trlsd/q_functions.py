@@ -47,6 +47,7 @@ class QFunctions(Protocol):
         gamma: float,
         max_iterations: int,
         tol: float,
+        stop_rule: str,
     ) -> list[FQIResult]:
         """
         Refit the Q of each ``(run, task)`` on its run's buffer with those rewards, from its parameters now.
@@ -57,6 +58,7 @@ class QFunctions(Protocol):
         :param gamma: discount factor
         :param max_iterations: cap on the fitted iterations
         :param tol: relative stopping tolerance
+        :param stop_rule: the stopping rule, one of ``sb3_trlsd.fqi.STOP_RULES``
         :return: one result per pair
         """
         ...
@@ -86,12 +88,15 @@ class PolicyQFunctions:
         gamma: float,
         max_iterations: int,
         tol: float,
+        stop_rule: str,
     ) -> list[FQIResult]:
         results = []
         for (run, task), task_rewards in zip(pairs, rewards, strict=True):
             assert run == 0, "a policy holds the Q-functions of one run"
             self.rows.sync(buffers[run])
-            results.append(self.policy.fit(task, self.rows, task_rewards, gamma, max_iterations, tol))
+            results.append(
+                self.policy.fit(task, self.rows, task_rewards, gamma, max_iterations, tol, stop_rule)
+            )
         return results
 
 
@@ -140,12 +145,13 @@ class LinearRunsQFunctions:
         gamma: float,
         max_iterations: int,
         tol: float,
+        stop_rule: str,
     ) -> list[FQIResult]:
         for run in sorted({run for run, _ in pairs}):
             rows, restart = buffers[run].read_new(self._cursors[run])
             assert not restart, "a run of a batch keeps every row: its buffer never wraps around"
             self.own_rows[run].extend(rows)
-        settings = {"gamma": gamma, "max_iterations": max_iterations, "tol": tol}
+        settings = {"gamma": gamma, "max_iterations": max_iterations, "tol": tol, "stop_rule": stop_rule}
         theta0 = [self.theta[run, task] for run, task in pairs]
         if self.shared_rows is not None:
             # The shared rows are every run's: one fit, its products over them shared by all pairs.

@@ -107,6 +107,8 @@ class RelabellingReplayBuffer(SharedDynamicsReplayBuffer):
         ``make_feature_map``) or a ``FeatureMap``
     :param rbf_per_dim: RBF centres per state dimension of the grid (see ``TRLSD``)
     :param rbf_sigma: width of the features, a fraction of the state box (see ``TRLSD``)
+    :param rbf_overlap: width of the RBFs in spacings of their centres (see ``TRLSD``)
+    :param max_features: the feature map's budget (see ``TRLSD``)
     :param fourier_features: the number of Fourier features (see ``TRLSD``)
     :param state_bounds: ``(low, high)`` of the states for an unbounded Box (None: the Box's, finite)
     :param reward_head_kwargs: further arguments of the heads (``r_max``, ``w_floor``, ``ridge``; ``cell_fn``,
@@ -136,8 +138,10 @@ class RelabellingReplayBuffer(SharedDynamicsReplayBuffer):
         sigma: float | Sequence[float] | None = None,
         similarity: str = "state",
         feature_map: str | FeatureMap = "auto",
-        rbf_per_dim: int = 5,
+        rbf_per_dim: int | Sequence[int] | str | None = None,
         rbf_sigma: float | Sequence[float] | None = None,
+        rbf_overlap: float | None = None,
+        max_features: int | None = None,
         fourier_features: int | None = None,
         state_bounds: tuple[Sequence[float], Sequence[float]] | None = None,
         reward_head_kwargs: dict[str, Any] | None = None,
@@ -155,6 +159,8 @@ class RelabellingReplayBuffer(SharedDynamicsReplayBuffer):
             feature_map=feature_map,
             rbf_per_dim=rbf_per_dim,
             rbf_sigma=rbf_sigma,
+            rbf_overlap=rbf_overlap,
+            max_features=max_features,
             fourier_features=fourier_features,
             state_bounds=state_bounds,
             reward_head_kwargs=reward_head_kwargs or {},

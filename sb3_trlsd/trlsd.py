@@ -47,7 +47,7 @@ UNFITTED_TASK = (
     "learn on it first, or call model.update_policy({task})"
 )
 # Settings of the features Phi that belong to TRLSD (which shares Phi between the policy and the heads).
-FEATURE_SETTINGS = ("features", "rbf_per_dim", "rbf_sigma", "state_bounds")
+FEATURE_SETTINGS = ("features", "rbf_per_dim", "rbf_sigma", "rbf_overlap", "max_features", "state_bounds")
 
 
 class _SingleTaskReward:
@@ -101,12 +101,25 @@ class TRLSD(OffPolicyAlgorithm):
         first action, on the optimism of a head with no sample; ``"first_sample"``, once its first sample is
         in (its first action is the unfitted Q's argmax)
     :param fqi_max_iterations: cap on Fitted-Q iterations per refit (None: the policy's own default)
-    :param fqi_tol: Fitted-Q stops when the parameters move by less than this, relative to their scale
-    :param feature_map: Phi, shared by the linear policy and the ridge heads: ``"rbf"`` (eq. 11's grid),
-        ``"fourier"`` (linear in the dimension), ``"auto"`` (the grid up to 125 centres) or a ``FeatureMap``
-    :param rbf_per_dim: RBF centres per state dimension of the grid
+    :param fqi_tol: Fitted-Q's relative stopping tolerance (see ``fqi_stop``)
+    :param fqi_stop: Fitted-Q's stopping rule: ``"targets"``, once the Bellman targets move by less than
+        ``fqi_tol`` of the return scale (what the next fit can still change on the data); ``"theta"``, once
+        the parameters move by less than ``fqi_tol`` of their scale (the paper's reproduction: with float32
+        features, directions of theta the data does not see may never settle). A refit that reaches
+        ``fqi_max_iterations`` first warns (``sb3_trlsd.fqi.FQICapWarning``)
+    :param feature_map: Phi, shared by the linear policy and the feature heads: ``"auto"`` (a grid of RBFs
+        1.5 spacings wide, counts from the box under ``max_features``, while every dimension gets at least 3
+        centres; else a row of RBFs per dimension, added), ``"paper"`` (eq. 11: the grid up to 125 centres, a
+        fifth of the spacing wide, else Fourier features), ``"rbf"``, ``"additive"``, ``"fourier"``, or a
+        ``FeatureMap`` (see ``sb3_trlsd.feature_maps.make_feature_map``)
+    :param rbf_per_dim: RBF centres per state dimension: one integer, one per dimension, or ``"cube"`` (the
+        same count in every dimension) / ``"box"`` (counts proportional to the box's sides, in its units)
+        under ``max_features``; None: the feature map's default (``"cube"``; 5 for ``"paper"``)
     :param rbf_sigma: width of the features, a fraction of the state box (one, or one per dimension); None:
-        a fifth of the grid's spacing (the paper's 0.2 on the maze), ``default_kernel_width(d)`` for Fourier
+        ``rbf_overlap`` spacings of the centres, ``default_kernel_width(d)`` for Fourier features
+    :param rbf_overlap: width of the RBFs in spacings of their centres (None: 1.5, the paper's 0.2 for
+        ``"paper"``); not with ``rbf_sigma``
+    :param max_features: the feature map's budget (None: 150, 125 for ``"paper"``)
     :param fourier_features: the number of Fourier features (None: 50 per state dimension)
     :param state_bounds: ``(low, high)`` of the states for an unbounded Box (None: the Box's, finite)
     :param reward_fn: ``reward_fn(states (n, d), task) -> (n,)``, the expected reward for the ``"known"``
@@ -167,9 +180,12 @@ class TRLSD(OffPolicyAlgorithm):
         first_fit: str = "first_step",
         fqi_max_iterations: int | None = None,
         fqi_tol: float = DEFAULT_TOL,
+        fqi_stop: str = "targets",
         feature_map: str | FeatureMap = "auto",
-        rbf_per_dim: int = 5,
+        rbf_per_dim: int | Sequence[int] | str | None = None,
         rbf_sigma: float | Sequence[float] | None = None,
+        rbf_overlap: float | None = None,
+        max_features: int | None = None,
         fourier_features: int | None = None,
         state_bounds: tuple[Sequence[float], Sequence[float]] | None = None,
         reward_fn: RewardFn | None = None,
@@ -204,9 +220,12 @@ class TRLSD(OffPolicyAlgorithm):
             first_fit=first_fit,
             fqi_max_iterations=fqi_max_iterations,
             fqi_tol=fqi_tol,
+            fqi_stop=fqi_stop,
             feature_map=feature_map,
             rbf_per_dim=rbf_per_dim,
             rbf_sigma=rbf_sigma,
+            rbf_overlap=rbf_overlap,
+            max_features=max_features,
             fourier_features=fourier_features,
             state_bounds=state_bounds,
             reward_head_kwargs=reward_head_kwargs or {},
@@ -302,6 +321,7 @@ class TRLSD(OffPolicyAlgorithm):
             gamma=self.gamma,
             max_iterations=self.config.fqi_max_iterations,
             tol=self.config.fqi_tol,
+            stop_rule=self.config.fqi_stop,
             on_refit=self._log_refit,
         )
 

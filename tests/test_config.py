@@ -6,7 +6,7 @@ import pytest
 from gymnasium import spaces
 
 from sb3_trlsd import TRLSD, Transitions, collect_transitions
-from sb3_trlsd.feature_maps import RandomFourierFeatures, RBFGrid
+from sb3_trlsd.feature_maps import AdditiveRBF, RandomFourierFeatures, RBFGrid
 from sb3_trlsd.reward_heads import GridCells, KnownRewardHead, TabularRewardHead
 from tests.conftest import MAZE_ID
 
@@ -62,7 +62,7 @@ def test_an_unbounded_state_box_is_refused_with_the_way_to_bound_it():
         TRLSD("LinearPolicy", "CartPole-v1")
     bounds = (np.array([-2.4, -3.0, -0.21, -3.5]), np.array([2.4, 3.0, 0.21, 3.5]))
     model = TRLSD("LinearPolicy", "CartPole-v1", state_bounds=bounds, seed=0)
-    assert isinstance(model.features, RandomFourierFeatures) and model.features.n_features == 200
+    assert isinstance(model.features, RBFGrid) and model.features.counts == (4, 4, 3, 3)
     model.learn(total_timesteps=60)
     assert model.policy_updates[0] >= 1 and np.isfinite(model.policy.theta.numpy()).all()
     mlp = TRLSD(
@@ -72,23 +72,25 @@ def test_an_unbounded_state_box_is_refused_with_the_way_to_bound_it():
     assert mlp.policy_updates[0] >= 1
 
 
-def test_the_default_features_follow_the_dimension():
-    """The paper's 5 x 5 grid in 2-D, Fourier features growing linearly with the dimension beyond 3-D."""
+def test_the_default_features_follow_the_box_and_the_dimension():
+    """A grid of RBFs 1.5 spacings wide, at least 3 centres a dimension within 150 (12 x 12 in 2-D); from 5-D
+    on, a row of 8 RBFs per dimension, added; the paper's 5 x 5 grid of width 0.2 by name."""
     maze = TRLSD("LinearPolicy", gym.make(MAZE_ID))
-    assert (
-        isinstance(maze.features, RBFGrid)
-        and maze.features.n_features == 25
-        and maze.features.widths == (0.2, 0.2)
-    )
+    assert isinstance(maze.features, RBFGrid) and maze.features.counts == (12, 12)
+    np.testing.assert_allclose(maze.features.widths, (1.5 * 5 / 12, 1.5 * 5 / 12))
+    paper = TRLSD("LinearPolicy", gym.make(MAZE_ID), feature_map="paper")
+    assert paper.features.n_features == 25 and paper.features.widths == (0.2, 0.2)
     six_d = gym.make("Acrobot-v1")
     model = TRLSD(
         "LinearPolicy",
         six_d,
         state_bounds=(six_d.observation_space.low * 0 - 1, -six_d.observation_space.low * 0 + 1),
     )
-    assert isinstance(model.features, RandomFourierFeatures) and model.features.n_features == 300
+    assert isinstance(model.features, AdditiveRBF) and model.features.n_features == 48
+    paper_6d = TRLSD("LinearPolicy", six_d, feature_map="paper", state_bounds=(-np.ones(6), np.ones(6)))
+    assert isinstance(paper_6d.features, RandomFourierFeatures) and paper_6d.features.n_features == 300
     with pytest.raises(ValueError, match="rbf_per_dim=5 on a 6-D state"):
-        TRLSD("LinearPolicy", six_d, feature_map="rbf", state_bounds=(-np.ones(6), np.ones(6)))
+        TRLSD("LinearPolicy", six_d, feature_map="rbf", rbf_per_dim=5, state_bounds=(-np.ones(6), np.ones(6)))
 
 
 def test_the_tabular_head_takes_a_user_discretisation_and_the_grid_by_default():

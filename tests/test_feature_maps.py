@@ -60,7 +60,7 @@ def test_fourier_features_approximate_the_gaussian_kernel():
 
 
 @pytest.mark.parametrize("dims", range(1, 9))
-@pytest.mark.parametrize("kind", ["auto", "rbf", "fourier"])
+@pytest.mark.parametrize("kind", ["paper", "rbf", "fourier"])
 def test_every_map_in_1_to_8_dimensions_fits_the_memory_bound_or_says_which_setting_to_change(kind, dims):
     """Built maps are within the bound; a grid too large to fit is refused before anything is allocated."""
     try:
@@ -72,7 +72,7 @@ def test_every_map_in_1_to_8_dimensions_fits_the_memory_bound_or_says_which_sett
     assert (8 + 25) * features.n_features**2 * 8 <= MEMORY_BOUND_BYTES
     phi = features(unit_states(7, dims))
     assert phi.shape == (7, features.n_features) and np.all(np.isfinite(phi))
-    if kind == "fourier" or (kind == "auto" and dims > 3):
+    if kind == "fourier" or (kind == "paper" and dims > 3):
         assert isinstance(features, RandomFourierFeatures) and features.n_features == 50 * dims  # linear in d
 
 
@@ -119,7 +119,7 @@ def test_bad_feature_settings_are_refused_by_name(call, argument):
 TODAY_2D_STATES = np.array([[1.3, -0.4], [7.9, 2.6]])
 TODAY_CASES = [
     (
-        {"kind": "auto", "low": (0, -1), "high": (10, 4)},
+        {"kind": "paper", "low": (0, -1), "high": (10, 4)},
         TODAY_2D_STATES,
         [0, 6, 12, 24],
         [
@@ -128,7 +128,7 @@ TODAY_CASES = [
         ],
     ),
     (
-        {"kind": "auto", "low": np.zeros(6), "high": np.arange(1.0, 7.0), "seed": 3},
+        {"kind": "paper", "low": np.zeros(6), "high": np.arange(1.0, 7.0), "seed": 3},
         np.linspace(0, 1, 12).reshape(2, 6),
         [0, 1, 150, 299],
         [
@@ -154,22 +154,24 @@ TODAY_CASES = [
 ]
 
 
-@pytest.mark.parametrize("name", ["auto", "paper"])
-@pytest.mark.parametrize("case", range(len(TODAY_CASES)), ids=["auto-2d", "auto-6d", "fourier-2d", "rbf-3d"])
-def test_todays_maps_are_unchanged(case, name):
-    """The maps of today's arguments give today's numbers, and "paper" is today's "auto" under any name."""
+@pytest.mark.parametrize(
+    "case", range(len(TODAY_CASES)), ids=["paper-2d", "paper-6d", "fourier-2d", "rbf-3d"]
+)
+def test_the_papers_maps_are_unchanged(case):
+    """The maps the paper's reproduction pins ("paper": the grid up to 125 centres a fifth of the spacing
+    wide, else Fourier features) give the numbers they gave before per-dimension counts and widths."""
     kwargs, states, columns, expected = TODAY_CASES[case]
     kwargs = dict(kwargs)
     kind = kwargs.pop("kind")
-    features = make_feature_map(name if kind == "auto" else kind, **kwargs)
+    features = make_feature_map(kind, **kwargs)
     np.testing.assert_allclose(features(states)[:, columns], expected, rtol=1e-12, atol=1e-15)
 
 
-def test_todays_2d_default_is_eq_11_with_a_fifth_of_the_spacing():
-    """The 2-D default is 5 x 5 RBFs of width 0.2 / 5 of each side, by hand, equal to the explicit grid."""
+def test_the_papers_2d_map_is_eq_11_with_a_fifth_of_the_spacing():
+    """The paper's 2-D map is 5 x 5 RBFs of width 0.2 / 5 of each side, by hand, equal to the grid."""
     low, high = np.array([0.0, -1.0]), np.array([10.0, 4.0])
-    features = make_feature_map("auto", low, high)
-    assert features == RBFGrid(tuple(low), tuple(high), 5, 0.04) == make_feature_map("paper", low, high)
+    features = make_feature_map("paper", low, high)
+    assert features == RBFGrid(tuple(low), tuple(high), 5, 0.04)
     axes = [low[i] + (np.arange(5) + 0.5) * (high[i] - low[i]) / 5 for i in range(2)]
     widths = 0.04 * (high - low)
     by_hand = np.exp(
@@ -249,9 +251,9 @@ def test_grid_counts_stay_within_the_budget_and_at_least_two_per_dimension(shape
 
 
 @pytest.mark.parametrize("dims", [1, 2, 3, 4, 6, 8, 10, 14])
-@pytest.mark.parametrize("kind", ["adaptive", "additive"])
+@pytest.mark.parametrize("kind", ["auto", "additive"])
 def test_the_scalable_maps_stay_within_their_budget_as_the_dimension_grows(kind, dims):
-    """ "adaptive" and "additive" have at most ADAPTIVE_MAX_FEATURES features in any dimension up to 14."""
+    """ "auto" and "additive" have at most ADAPTIVE_MAX_FEATURES features in any dimension up to 14."""
     features = make_feature_map(
         kind, np.zeros(dims), np.arange(1.0, dims + 1), n_actions=2 * dims, n_tasks=25
     )
@@ -260,7 +262,7 @@ def test_the_scalable_maps_stay_within_their_budget_as_the_dimension_grows(kind,
     if isinstance(features, AdditiveRBF):
         assert features.counts == (ADDITIVE_PER_DIM,) * dims  # 8 a dimension: 112 features in 14-D
     else:
-        assert kind == "adaptive" and dims <= 4 and min(features.counts) >= 3
+        assert kind == "auto" and dims <= 4 and min(features.counts) >= 3
     phi = features(unit_states(5, dims))
     assert phi.shape == (5, features.n_features) and np.all(np.isfinite(phi))
 
@@ -276,7 +278,7 @@ def test_the_scalable_maps_stay_within_their_budget_as_the_dimension_grows(kind,
         ({"kind": "rbf", "rbf_overlap": 0.5, "rbf_sigma": 0.1}, "rbf_overlap"),
         ({"kind": "fourier", "rbf_overlap": 0.5}, "rbf_overlap"),
         ({"kind": "rbf", "rbf_per_dim": "cube", "max_features": 3}, "max_features"),
-        ({"kind": "adaptive", "max_features": 0}, "max_features"),
+        ({"kind": "auto", "max_features": 0}, "max_features"),
     ],
     ids=[
         "three-counts-in-2d",

@@ -85,9 +85,9 @@ def test_overflowing_distances_give_zero_similarity_not_nan():
     assert np.all(MAZE_GRID(huge) == 0)
 
 
-def test_the_default_map_of_the_maze_is_the_papers_grid_and_pickles():
-    """make_feature_map's default on the maze's box is the paper's grid (width 0.2); it survives pickling."""
-    grid = make_feature_map("auto", (0.0, 0.0), (5.0, 5.0))
+def test_the_papers_map_of_the_maze_is_its_grid_and_pickles():
+    """The "paper" map on the maze's box is the paper's grid (width 0.2); it survives pickling."""
+    grid = make_feature_map("paper", (0.0, 0.0), (5.0, 5.0))
     assert grid == MAZE_GRID and grid.widths == (0.2, 0.2)
     restored = pickle.loads(pickle.dumps(grid))
     np.testing.assert_array_equal(restored.centres, grid.centres)

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from sb3_trlsd import TRLSD, TaskLearner
+from sb3_trlsd.fqi import DEFAULT_TOL
 from tests.conftest import MAZE_ID
 
 
@@ -44,7 +45,13 @@ def test_learning_after_save_and_load_takes_the_actions_of_an_uninterrupted_run(
     np.testing.assert_array_equal(ours.actions, theirs.actions)
     np.testing.assert_array_equal(ours.rewards, theirs.rewards)
     assert resumed.policy_updates == uninterrupted.policy_updates
-    np.testing.assert_allclose(resumed.policy.theta.numpy(), uninterrupted.policy.theta.numpy(), rtol=1e-9)
+    # The loaded model rebuilds its Gram matrices in one sum, not row batch by row batch: theta differs by
+    # rounding in directions the data does not see, which Fitted-Q's default rule ("targets") leaves as they
+    # are; on the data, each fit is within gamma / (1 - gamma) * fqi_tol of the return scale of the other's.
+    states = uninterrupted.replay_buffer.transitions().states
+    q_resumed, q_uninterrupted = (model.policy.q_values(states, 4) for model in (resumed, uninterrupted))
+    scale = np.abs(q_uninterrupted).max()
+    assert np.abs(q_resumed - q_uninterrupted).max() <= 2 * 0.9 / 0.1 * DEFAULT_TOL * scale
 
 
 def test_a_loaded_model_has_int_task_keys_and_its_heads_samples(tmp_path):

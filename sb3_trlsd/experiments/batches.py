@@ -1,7 +1,7 @@
 """
 The figures' runs in batches: each method's runs split into ``SOURCE_SETS`` batches of consecutive runs
-(one method, different tasks and seeds), stepped in lockstep (``sb3_trlsd.experiments.lockstep``) with TRLSD's own task
-learners and Fitted-Q function; the runs of a transfer batch share one source set, drawn from
+(one method, different tasks and seeds), stepped in lockstep (``sb3_trlsd.experiments.lockstep``) with
+TRLSD's own task learners and Fitted-Q function; the runs of a transfer batch share one source set, drawn from
 ``source_seed(seed, b)``, so every method sees the same tasks, source sets and env seeds (under a protocol
 with ``source_sets="per_run"``, each run draws its own, from ``run_source_seed``). A run of a batch takes the
 actions of that run alone (``runner.py``) on the same source set (``tests/test_lockstep.py``). The choices

@@ -102,6 +102,7 @@ class Lockstep:
             gamma=model.gamma,
             max_iterations=model.config.fqi_max_iterations,
             tol=model.config.fqi_tol,
+            stop_rule=model.config.fqi_stop,
         )
 
     def run(self, seeds: Sequence[int]) -> list[LockstepRecord]:

@@ -151,7 +151,8 @@ class Protocol:
     def model_kwargs(self, reward_head: str) -> dict[str, Any]:
         """
         Keyword arguments of a ``TRLSD`` model with the named head: ``gamma``, ``first_fit`` and
-        ``reward_head_kwargs`` (``head_kwargs``).
+        ``reward_head_kwargs`` (``head_kwargs``), with the paper's features (``"paper"``: 5 x 5 RBFs of width
+        0.2 on the maze) and Fitted-Q's stopping rule on theta, which the library's defaults are not.
 
         :param reward_head: a head name ``TRLSD`` takes
         """
@@ -159,6 +160,8 @@ class Protocol:
             "gamma": self.gamma,
             "first_fit": self.first_fit,
             "reward_head_kwargs": self.head_kwargs(reward_head),
+            "feature_map": "paper",
+            "fqi_stop": "theta",
         }
 
     def run_inputs(self, reward_head: str, multitask: bool) -> tuple:
