@@ -18,7 +18,7 @@ Measured (seed 0, 3 goals; quality, k; "-": not run; fits capped at 200 iteratio
 features and the narrower grids in 4-D reach)::
 
     map                              square      floor       mixed4      cube6       cube8
-    "auto" today (= "paper")         0.69   25   0.32   25   0.04  200  -0.00  300  -0.00  400
+    "paper"                          0.69   25   0.32   25   0.04  200  -0.00  300  -0.00  400
     rbf 5/dim, sigma 0.2 of the box  0.93   25   0.88   25   -           -           -
     rbf "cube" <= 150, overlap 1.0   0.88  144   0.93  144   0.36  144   -           -
     rbf "cube" <= 150, overlap 1.5   0.99  144   0.99  144   0.92  144   -           -
@@ -34,7 +34,7 @@ features and the narrower grids in 4-D reach)::
     fourier m <= 150, sigma 0.5      0.32  100   0.47  100   0.61  150   0.33  150   0.61  150
     fourier m <= 150, sigma 1.0      -           -           -           0.31  150   0.28  150
 
-``make_feature_map("adaptive", ...)`` is the fourth row up to 4-D (12 x 12 in 2-D, 4 x 4 x 3 x 3 in 4-D)
+``make_feature_map("auto", ...)`` is the fourth row up to 4-D (12 x 12 in 2-D, 4 x 4 x 3 x 3 in 4-D)
 and the "additive 8/dim" row from 5-D on.
 
 Usage::
@@ -114,8 +114,8 @@ ENVS = {
 def candidate_maps(env: PointGoal) -> dict[str, dict]:
     """make_feature_map arguments by label: today's maps, then the candidates (a grid only up to 4-D)."""
     maps = {
-        "paper (auto, today)": {"kind": "auto"},
-        "adaptive": {"kind": "adaptive"},
+        "paper": {"kind": "paper"},
+        "auto": {"kind": "auto"},
     }
     if env.dims <= 4:
         maps |= {
@@ -128,6 +128,12 @@ def candidate_maps(env: PointGoal) -> dict[str, dict]:
                     "rbf_overlap": c,
                 }
                 for c in (1.0, 1.5, 2.0)
+            },
+            "rbf cube<=64, overlap 1.5": {
+                "kind": "rbf",
+                "rbf_per_dim": "cube",
+                "max_features": 64,
+                "rbf_overlap": 1.5,
             },
             "rbf box<=150, overlap 1.0": {
                 "kind": "rbf",

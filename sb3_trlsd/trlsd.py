@@ -30,7 +30,7 @@ from sb3_trlsd.config import LearnerBuilder, TRLSDConfig, check_discount
 from sb3_trlsd.data import Transitions
 from sb3_trlsd.engine import Engine, Run
 from sb3_trlsd.feature_maps import FeatureMap
-from sb3_trlsd.fqi import DEFAULT_TOL, FQIResult
+from sb3_trlsd.fqi import FQIResult
 from sb3_trlsd.observations import StateBoxMonitor, check_action_space, split_observation, state_space_of
 from sb3_trlsd.persistence import BUFFER_ROWS, empty_rows, read_replay_buffer
 from sb3_trlsd.policies import LinearPolicy, MlpPolicy, TaskQPolicy
@@ -101,7 +101,8 @@ class TRLSD(OffPolicyAlgorithm):
         first action, on the optimism of a head with no sample; ``"first_sample"``, once its first sample is
         in (its first action is the unfitted Q's argmax)
     :param fqi_max_iterations: cap on Fitted-Q iterations per refit (None: the policy's own default)
-    :param fqi_tol: Fitted-Q's relative stopping tolerance (see ``fqi_stop``)
+    :param fqi_tol: Fitted-Q's relative stopping tolerance (see ``fqi_stop``; None: 1e-3 on the targets,
+        1e-4 on theta)
     :param fqi_stop: Fitted-Q's stopping rule: ``"targets"``, once the Bellman targets move by less than
         ``fqi_tol`` of the return scale (what the next fit can still change on the data); ``"theta"``, once
         the parameters move by less than ``fqi_tol`` of their scale (the paper's reproduction: with float32
@@ -179,7 +180,7 @@ class TRLSD(OffPolicyAlgorithm):
         update_ratio: float = 2.0,
         first_fit: str = "first_step",
         fqi_max_iterations: int | None = None,
-        fqi_tol: float = DEFAULT_TOL,
+        fqi_tol: float | None = None,
         fqi_stop: str = "targets",
         feature_map: str | FeatureMap = "auto",
         rbf_per_dim: int | Sequence[int] | str | None = None,
