@@ -34,8 +34,9 @@ features and the narrower grids in 4-D reach)::
     fourier m <= 150, sigma 0.5      0.32  100   0.47  100   0.61  150   0.33  150   0.61  150
     fourier m <= 150, sigma 1.0      -           -           -           0.31  150   0.28  150
 
-``make_feature_map("auto", ...)`` is the fourth row up to 4-D (12 x 12 in 2-D, 4 x 4 x 3 x 3 in 4-D)
-and the "additive 8/dim" row from 5-D on.
+``make_feature_map("auto", ...)`` is the "rbf cube <= 64, overlap 1.5" map up to 3-D (8 x 8 in 2-D: within
+0.02 of the "<= 150" row on square, floor and mixed4 at a third to a tenth of its fit's time, 2 goals)
+and the "additive 8/dim" row from 4-D on (as many per dimension as 64 features allow beyond 8-D).
 
 Usage::
 

@@ -120,7 +120,7 @@ class TRLSD(OffPolicyAlgorithm):
         ``rbf_overlap`` spacings of the centres, ``default_kernel_width(d)`` for Fourier features
     :param rbf_overlap: width of the RBFs in spacings of their centres (None: 1.5, the paper's 0.2 for
         ``"paper"``); not with ``rbf_sigma``
-    :param max_features: the feature map's budget (None: 150, 125 for ``"paper"``)
+    :param max_features: the feature map's budget (None: 64, 125 for ``"paper"``)
     :param fourier_features: the number of Fourier features (None: 50 per state dimension)
     :param state_bounds: ``(low, high)`` of the states for an unbounded Box (None: the Box's, finite)
     :param reward_fn: ``reward_fn(states (n, d), task) -> (n,)``, the expected reward for the ``"known"``

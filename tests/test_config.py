@@ -62,7 +62,7 @@ def test_an_unbounded_state_box_is_refused_with_the_way_to_bound_it():
         TRLSD("LinearPolicy", "CartPole-v1")
     bounds = (np.array([-2.4, -3.0, -0.21, -3.5]), np.array([2.4, 3.0, 0.21, 3.5]))
     model = TRLSD("LinearPolicy", "CartPole-v1", state_bounds=bounds, seed=0)
-    assert isinstance(model.features, RBFGrid) and model.features.counts == (4, 4, 3, 3)
+    assert isinstance(model.features, AdditiveRBF) and model.features.n_features == 32
     model.learn(total_timesteps=60)
     assert model.policy_updates[0] >= 1 and np.isfinite(model.policy.theta.numpy()).all()
     mlp = TRLSD(
@@ -73,11 +73,11 @@ def test_an_unbounded_state_box_is_refused_with_the_way_to_bound_it():
 
 
 def test_the_default_features_follow_the_box_and_the_dimension():
-    """A grid of RBFs 1.5 spacings wide, at least 3 centres a dimension within 150 (12 x 12 in 2-D); from 5-D
-    on, a row of 8 RBFs per dimension, added; the paper's 5 x 5 grid of width 0.2 by name."""
+    """A grid of RBFs 1.5 spacings wide, at least 3 centres a dimension within 64 (8 x 8 in 2-D); beyond, a
+    row of 8 RBFs per dimension, added; the paper's 5 x 5 grid of width 0.2 by name."""
     maze = TRLSD("LinearPolicy", gym.make(MAZE_ID))
-    assert isinstance(maze.features, RBFGrid) and maze.features.counts == (12, 12)
-    np.testing.assert_allclose(maze.features.widths, (1.5 * 5 / 12, 1.5 * 5 / 12))
+    assert isinstance(maze.features, RBFGrid) and maze.features.counts == (8, 8)
+    np.testing.assert_allclose(maze.features.widths, (1.5 * 5 / 8, 1.5 * 5 / 8))
     paper = TRLSD("LinearPolicy", gym.make(MAZE_ID), feature_map="paper")
     assert paper.features.n_features == 25 and paper.features.widths == (0.2, 0.2)
     six_d = gym.make("Acrobot-v1")
