@@ -225,6 +225,24 @@ class FeatureMap(ABC):
         """
 
 
+def _checked_rbf_fields(
+    rbf: RBFGrid | AdditiveRBF,
+) -> tuple[tuple[float, ...], tuple[float, ...], tuple[int, ...]]:
+    """
+    Check an RBF map's box, counts and widths, store them normalised (one count or width when all agree)
+    with the widths in state units, and return the box and the counts per dimension.
+    """
+    low, high = _box(rbf.low, rbf.high)
+    counts = _counts("n_per_dim (rbf_per_dim)", rbf.n_per_dim, len(low))
+    sigma = _widths("sigma (rbf_sigma, the width of the RBFs)", rbf.sigma, len(low))
+    object.__setattr__(rbf, "low", low)
+    object.__setattr__(rbf, "high", high)
+    object.__setattr__(rbf, "n_per_dim", counts[0] if len(set(counts)) == 1 else counts)
+    object.__setattr__(rbf, "sigma", sigma[0] if len(set(sigma)) == 1 else sigma)
+    object.__setattr__(rbf, "widths", tuple(w * (h - lo) for w, lo, h in zip(sigma, low, high, strict=True)))
+    return low, high, counts
+
+
 @dataclass(frozen=True)
 class RBFGrid(FeatureMap):
     """
@@ -247,16 +265,7 @@ class RBFGrid(FeatureMap):
     axes: tuple[np.ndarray, ...] = field(init=False, repr=False, compare=False)  # centres per dimension
 
     def __post_init__(self) -> None:
-        low, high = _box(self.low, self.high)
-        counts = _counts("n_per_dim (rbf_per_dim)", self.n_per_dim, len(low))
-        sigma = _widths("sigma (rbf_sigma, the width of the RBFs)", self.sigma, len(low))
-        object.__setattr__(self, "low", low)
-        object.__setattr__(self, "high", high)
-        object.__setattr__(self, "n_per_dim", counts[0] if len(set(counts)) == 1 else counts)
-        object.__setattr__(self, "sigma", sigma[0] if len(set(sigma)) == 1 else sigma)
-        object.__setattr__(
-            self, "widths", tuple(s * (h - lo) for s, lo, h in zip(sigma, low, high, strict=True))
-        )
+        low, high, counts = _checked_rbf_fields(self)
         object.__setattr__(self, "centres", grid_centres(np.array(low), np.array(high), counts))
         object.__setattr__(self, "axes", tuple(grid_axes(np.array(low), np.array(high), counts)))
 
@@ -312,16 +321,7 @@ class AdditiveRBF(FeatureMap):
     axes: tuple[np.ndarray, ...] = field(init=False, repr=False, compare=False)  # centres per dimension
 
     def __post_init__(self) -> None:
-        low, high = _box(self.low, self.high)
-        counts = _counts("n_per_dim (rbf_per_dim)", self.n_per_dim, len(low))
-        sigma = _widths("sigma (rbf_sigma, the width of the RBFs)", self.sigma, len(low))
-        object.__setattr__(self, "low", low)
-        object.__setattr__(self, "high", high)
-        object.__setattr__(self, "n_per_dim", counts[0] if len(set(counts)) == 1 else counts)
-        object.__setattr__(self, "sigma", sigma[0] if len(set(sigma)) == 1 else sigma)
-        object.__setattr__(
-            self, "widths", tuple(s * (h - lo) for s, lo, h in zip(sigma, low, high, strict=True))
-        )
+        low, high, counts = _checked_rbf_fields(self)
         object.__setattr__(self, "axes", tuple(grid_axes(np.array(low), np.array(high), counts)))
 
     @property
