@@ -26,7 +26,6 @@ import sb3_trlsd_envs
 from sb3_trlsd.cli_parser import IMAGE_EXTENSIONS, ZOO_SCRIPTS, build_parser
 from sb3_trlsd.experiments import FIGURES, STUDIES, STUDY_OPTIONS
 from sb3_trlsd.experiments.benchmark import FAMILIES
-from sb3_trlsd.experiments.mo_suite.command import suite_command
 
 __all__ = ["main"]
 
@@ -251,6 +250,55 @@ def benchmark_command(args: argparse.Namespace) -> int:
     return run_in_turn(
         "benchmark", families, lambda family: benchmark_family(family, out, cache, args), cache
     )
+
+
+def suite_command(args: argparse.Namespace) -> int:
+    """
+    Run the suite on one family (or all that can run here), write their files and print the table.
+
+    :return: 0, or 128 + the signal's number when SIGINT or SIGTERM stopped it
+    """
+    from sb3_trlsd.experiments.mo_suite.families import FAMILIES as SUITE_FAMILIES
+    from sb3_trlsd.experiments.mo_suite.families import available
+    from sb3_trlsd.experiments.mo_suite.suite import run_suite, suite_table
+
+    if args.family == "all":
+        families = [name for name, family in SUITE_FAMILIES.items() if available(family)]
+    else:
+        families = [args.family]
+    if not all(available(SUITE_FAMILIES[name]) for name in families):
+        needs = SUITE_FAMILIES[args.family].requires or "nothing else"
+        raise ValueError(
+            f"{args.family} needs MO-Gymnasium (and {needs}): pip install 'sb3-trlsd[benchmarks]'"
+        )
+    out = usable_directory(args.out, "--out")
+    cache = None if args.no_cache else usable_directory(args.cache or out / "runs", "--cache")
+    done = []
+
+    def run_one(name: str) -> None:
+        data = run_suite(
+            name,
+            out,
+            runs=args.runs,
+            seed=args.seed,
+            workers=args.workers,
+            methods=args.methods,
+            cache=cache,
+            n_source=args.source,
+            n_online=args.online,
+        )
+        done.append(data)
+        print(
+            f"mo_suite_{name} done in {data['wall_time_seconds']:.0f} s\n\n{suite_table([data])}\n",
+            flush=True,
+        )
+
+    status = run_in_turn("benchmark-suite", families, run_one, cache)
+    if len(done) > 1:
+        table = suite_table(done)
+        (out / "mo_suite_table.md").write_text(table + "\n")
+        print(table)
+    return status
 
 
 def claims_command(args: argparse.Namespace) -> int:

@@ -11,7 +11,8 @@ import os
 from sb3_trlsd.experiments import FIGURES, STUDIES
 from sb3_trlsd.experiments.backends import BACKENDS
 from sb3_trlsd.experiments.benchmark import FAMILIES
-from sb3_trlsd.experiments.mo_suite.command import add_parser as add_suite_parser
+from sb3_trlsd.experiments.mo_suite.families import FAMILIES as SUITE_FAMILIES
+from sb3_trlsd.experiments.mo_suite.peers import METHODS as SUITE_METHODS
 from sb3_trlsd.experiments.protocols import DEFAULT_PROTOCOL, PRESETS
 
 __all__ = [
@@ -205,7 +206,36 @@ def build_parser() -> argparse.ArgumentParser:
         "--workers", type=positive_int, default=os.cpu_count() or 1, help="processes (default: %(default)s)"
     )
     add_cache_options(benchmark)
-    add_suite_parser(commands)
+    suite = commands.add_parser(
+        "benchmark-suite",
+        help="TRLSD and its peers on MO-Gymnasium task families, one task per weight vector (CSV, PNG, JSON)",
+        description="Each MO-Gymnasium env is a family of tasks sharing its dynamics, one per weight "
+        "vector w of its reward vector (reward w . r_vec). Every method learns the same held-out target "
+        "weights with the same seeds, after the same random source transitions collected under other "
+        "weights, for the family's online budget; the score is the mean scalar reward per online step. Needs "
+        "sb3-trlsd[benchmarks].",
+    )
+    suite.add_argument(
+        "family", choices=[*SUITE_FAMILIES, "all"], help="which family (all: those that can run here)"
+    )
+    suite.add_argument("--runs", type=positive_int, default=20, help="runs per method (default: %(default)s)")
+    suite.add_argument("--out", default="results", help="output directory (default: %(default)s)")
+    suite.add_argument("--seed", type=int, default=0, help="seed of the first run; run r uses seed + r")
+    suite.add_argument(
+        "--workers", type=positive_int, default=os.cpu_count() or 1, help="processes (default: %(default)s)"
+    )
+    suite.add_argument(
+        "--methods",
+        nargs="+",
+        choices=list(SUITE_METHODS),
+        default=list(SUITE_METHODS),
+        help="methods (default: all)",
+    )
+    suite.add_argument(
+        "--source", type=positive_int, default=None, help="source transitions (default: 20,000)"
+    )
+    suite.add_argument("--online", type=positive_int, default=None, help="online steps (default: 1,000)")
+    add_cache_options(suite)
     for script in ZOO_SCRIPTS:
         # Listed for --help; main() hands their arguments to the Zoo before this parser sees them.
         commands.add_parser(
