@@ -30,8 +30,7 @@ def test_weight_splits_are_disjoint_seeded_and_on_the_simplex(name):
     """Source, tuning and evaluation weights share no vector (a target seen as a source would leak), are
     the same at every call (runs could not be compared otherwise) and are convex combinations."""
     family = FAMILIES[name]
-    if not available(family):
-        pytest.skip(f"{name} needs {family.requires}")
+    assert available(family), f"{name} needs {family.requires}: the dev extra installs it"
     split = weight_split(family)
     rows = {tuple(np.round(w, 12)) for part in (split.source, split.tuning, split.evaluation) for w in part}
     assert len(rows) == family.n_tasks
