@@ -99,7 +99,7 @@ def build_parser() -> argparse.ArgumentParser:
         "reproduce",
         help="reproduce a figure of the paper's section 4, or a study beyond it (CSV, PNG and JSON)",
         description="Reproduce the paper's experiments; without --runs, at the paper's sizes. 'beyond' "
-        "(issue 18) tunes eq. 9, OFUL, Thompson sampling and the Bernstein bound on the same budget (8 "
+        "tunes eq. 9, OFUL, Thompson sampling and the Bernstein bound on the same budget (8 "
         "configurations each, on --tuning-runs runs whose seeds are disjoint from the evaluation's, selected "
         "on the reward over the last 500 online transitions), then evaluates each selection on --runs runs "
         "in Figure 5's setting (linear Q; MLP Q on --mlp-runs runs), on the paper's maze and on its variant "

@@ -2,7 +2,7 @@
 Reproductions of the paper's experiments (section 4, Figures 1-8), one module per experiment, and the
 registry the ``sb3-trlsd reproduce`` command runs them from. Each figure writes ``figN.csv`` (curves),
 ``figN.png`` and ``figN.json`` (aggregates, policy updates, wall time, parameters, seed, version). Studies
-beyond the paper (``STUDIES``: ``beyond``, issue 18's comparison of confidence bounds) run the same way, with
+beyond the paper (``STUDIES``: ``beyond``, the comparison of confidence bounds) run the same way, with
 options of their own.
 """
 

@@ -1,5 +1,5 @@
 """
-Beyond the paper (issue 18): eq. 9 against other confidence bounds, each given the same tuning budget, then
+Beyond the paper: eq. 9 against other confidence bounds, each given the same tuning budget, then
 evaluated in Figure 5's setting (the 25 tasks in turn, 25,000 random source transitions, 1,000 online), with
 the linear Q and (``mlp_runs``) the MLP Q, on the paper's maze and on its variant whose reward noise differs
 by cell (``CELL_NOISE_STDS``), where a bound that weighs how much neighbours agree can matter.

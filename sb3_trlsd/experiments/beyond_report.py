@@ -32,7 +32,7 @@ __all__ = [
 ]
 
 Curve = tuple[str, str, str, str]  # (label, maze, Q, method) of each curve
-GOAL_FRACTION = 0.8  # issue 18's goal: 80% of the known-reward level over the last 500 online transitions
+GOAL_FRACTION = 0.8  # the study's goal: 80% of the known-reward level over the last 500 online transitions
 
 
 def curve_label(maze: str, policy: str, method: str) -> str:
