@@ -127,6 +127,8 @@ class TRLSDConfig:
     :param similarity: ``"state"`` (eq. 6) or ``"features"`` (eq. 7)
     :param update_ratio: refit a task when the CI at an encountered state has been divided by this (> 1)
     :param first_fit: when a task's Q is first fitted, one of ``FIRST_FIT_RULES``
+    :param refit_growth: once the trigger has fired, a task's refit waits until its samples have grown by this
+        fraction since its last refit (>= 0; 0: at once, the paper)
     :param fqi_max_iterations: cap on Fitted-Q iterations per refit (None: the Q-function's own default)
     :param fqi_tol: Fitted-Q's relative stopping tolerance (see ``fqi_stop``; None: ``FQI_TOLS`` of the rule)
     :param fqi_stop: Fitted-Q's stopping rule, one of ``STOP_RULES``: ``"targets"`` (the Bellman targets move
@@ -154,6 +156,7 @@ class TRLSDConfig:
     similarity: str = "state"
     update_ratio: float = 2.0
     first_fit: str = "first_step"
+    refit_growth: float = 0.1
     fqi_max_iterations: int | None = None
     fqi_tol: float | None = None
     fqi_stop: str = "targets"
@@ -190,6 +193,12 @@ class TRLSDConfig:
             "update_ratio",
             "> 1 (the CI must shrink to trigger a refit)",
             self.update_ratio,
+        )
+        _require(
+            _finite("refit_growth", self.refit_growth) >= 0,
+            "refit_growth",
+            ">= 0 (a fraction of the task's samples; 0 refits as soon as the trigger fires)",
+            self.refit_growth,
         )
         if self.fqi_stop not in STOP_RULES:
             raise ValueError(f"fqi_stop must be one of {list(STOP_RULES)}, got {self.fqi_stop!r}")
@@ -251,6 +260,7 @@ class TRLSDConfig:
             "similarity": self.similarity,
             "update_ratio": self.update_ratio,
             "first_fit": self.first_fit,
+            "refit_growth": self.refit_growth,
             "fqi_max_iterations": self.fqi_max_iterations,
             "fqi_tol": self.fqi_tol,
             "fqi_stop": self.fqi_stop,
@@ -450,7 +460,7 @@ class LearnerBuilder:
     ) -> TaskLearner:
         """
         The learning state of ``task`` with no samples: its reward head (``reward_head``), the config's
-        ``update_ratio`` and ``first_fit``, and the reward timing.
+        ``update_ratio``, ``first_fit`` and ``refit_growth``, and the reward timing.
 
         :param task: the task
         :param reward_fn: see ``reward_head``
@@ -464,4 +474,5 @@ class LearnerBuilder:
             config.update_ratio,
             first_fit=config.first_fit,
             reward_timing=self.reward_timing,
+            refit_growth=config.refit_growth,
         )

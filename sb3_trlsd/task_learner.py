@@ -40,6 +40,10 @@ class TaskLearner:
         its first action, see ``fit_before_acting``) or ``"first_sample"`` (due once its first sample is in)
     :param reward_timing: the state of a transition its reward belongs to, one of ``REWARD_TIMINGS``: the head
         learns, and relabels the buffer, at that state
+    :param refit_growth: once the trigger has fired, the refit waits until the task's samples have grown by
+        this fraction since its last refit (at least one new sample); 0 refits as soon as it fires (the
+        paper). Refits are then at most about 1 / refit_growth + ln(n) / ln(1 + refit_growth) over n samples,
+        the lazy updates of rarely-switching optimism (Abbasi-Yadkori et al., 2011)
     """
 
     def __init__(
@@ -49,6 +53,7 @@ class TaskLearner:
         update_ratio: float,
         first_fit: str = "first_step",
         reward_timing: str = "start_state",
+        refit_growth: float = 0.0,
     ):
         if not update_ratio > 1:
             raise ValueError(
@@ -58,6 +63,9 @@ class TaskLearner:
             raise ValueError(f"first_fit must be one of {list(FIRST_FIT_RULES)}, got {first_fit!r}")
         if reward_timing not in REWARD_TIMINGS:
             raise ValueError(f"reward_timing must be one of {list(REWARD_TIMINGS)}, got {reward_timing!r}")
+        if not (np.isfinite(refit_growth) and refit_growth >= 0):
+            raise ValueError(f"refit_growth must be >= 0 (a fraction of the samples), got {refit_growth}")
+        self.refit_growth = float(refit_growth)
         self.first_fit = first_fit
         self.reward_timing = reward_timing
         self.task = int(task)
@@ -65,6 +73,9 @@ class TaskLearner:
         self.update_ratio = float(update_ratio)
         self.refits = 0
         self.due = False
+        self.triggered = False  # the trigger fired since the last refit (the refit may wait: refit_growth)
+        self.samples = 0  # online samples of the task
+        self.samples_at_refit = 0
         self.uncertainty_at_refit: Any = None  # head.snapshot() at the last refit; None before the first
         self.rows_at_refit = 0  # rows of the shared buffer at the last refit
         # Derived from the head and the buffer, rebuilt after loading: not saved.
@@ -99,7 +110,7 @@ class TaskLearner:
         has grown by ``update_ratio`` since the last refit, so that new dynamics data reaches its policy. A
         head may have a rule of its own (``RewardHead.refit_due``: the OFUL head's is determinant doubling).
         A task never fitted is due after this sample under the ``"first_sample"`` rule (and waits for its
-        first step under ``"first_step"``).
+        first step under ``"first_step"``). Once the trigger has fired, the refit waits for ``refit_growth``.
 
         :param state: the transition's start state (d,)
         :param next_state: the state it arrived at (d,)
@@ -109,15 +120,19 @@ class TaskLearner:
         rewarded = next_state if self.reward_timing == "next_state" else state
         state = np.asarray(rewarded, dtype=np.float64).reshape(1, -1)
         self.head.update(state, np.array([reward], dtype=np.float64))
+        self.samples += 1
         if not self.fitted:
             self.due = self.due or self.first_fit == "first_sample"
             return
         if self.due:
             return
-        if not self.head.has_uncertainty:
-            self.due = n_rows >= self.update_ratio * max(self.rows_at_refit, 1)
-            return
-        self.due = self.head.refit_due(self.uncertainty_at_refit, state, self.update_ratio)
+        if not self.triggered:
+            if not self.head.has_uncertainty:
+                self.triggered = n_rows >= self.update_ratio * max(self.rows_at_refit, 1)
+            else:
+                self.triggered = self.head.refit_due(self.uncertainty_at_refit, state, self.update_ratio)
+        new_samples = self.samples - self.samples_at_refit
+        self.due = self.triggered and new_samples >= max(1.0, self.refit_growth * self.samples_at_refit)
 
     def relabelled_rewards(self, buffer: SharedDynamicsReplayBuffer) -> np.ndarray:
         """
@@ -145,5 +160,6 @@ class TaskLearner:
         """
         self.uncertainty_at_refit = self.head.snapshot()
         self.rows_at_refit = int(n_rows)
+        self.samples_at_refit = self.samples
         self.refits += 1
-        self.due = False
+        self.due = self.triggered = False

@@ -100,7 +100,13 @@ class TRLSD(OffPolicyAlgorithm):
     :param first_fit: when a task's Q is first fitted (the paper does not say): ``"first_step"``, before its
         first action, on the optimism of a head with no sample; ``"first_sample"``, once its first sample is
         in (its first action is the unfitted Q's argmax)
-    :param fqi_max_iterations: cap on Fitted-Q iterations per refit (None: the policy's own default)
+    :param refit_growth: once the trigger has fired, a task's refit waits until its samples have grown by this
+        fraction since its last refit: refits are then at most ~1 / refit_growth + ln(n) / ln(1 +
+        refit_growth) over n samples (rarely-switching optimism's lazy updates), so their cost per step
+        falls as a run goes on; 0 refits as soon as the trigger fires (the paper's Algorithm 1)
+    :param fqi_max_iterations: cap on Fitted-Q iterations per refit (None: the policy's own default, 500
+        linear and 200 MLP, and under ``fqi_stop="targets"`` at most ``sb3_trlsd.fqi.targets_rule_cap(gamma,
+        fqi_tol)``, three times what a gamma-contraction needs: 198 at gamma 0.9)
     :param fqi_tol: Fitted-Q's relative stopping tolerance (see ``fqi_stop``; None: 1e-3 on the targets,
         1e-4 on theta)
     :param fqi_stop: Fitted-Q's stopping rule: ``"targets"``, once the Bellman targets move by less than
@@ -179,6 +185,7 @@ class TRLSD(OffPolicyAlgorithm):
         similarity: str = "state",
         update_ratio: float = 2.0,
         first_fit: str = "first_step",
+        refit_growth: float = 0.1,
         fqi_max_iterations: int | None = None,
         fqi_tol: float | None = None,
         fqi_stop: str = "targets",
@@ -219,6 +226,7 @@ class TRLSD(OffPolicyAlgorithm):
             similarity=similarity,
             update_ratio=update_ratio,
             first_fit=first_fit,
+            refit_growth=refit_growth,
             fqi_max_iterations=fqi_max_iterations,
             fqi_tol=fqi_tol,
             fqi_stop=fqi_stop,

@@ -152,7 +152,8 @@ class Protocol:
         """
         Keyword arguments of a ``TRLSD`` model with the named head: ``gamma``, ``first_fit`` and
         ``reward_head_kwargs`` (``head_kwargs``), with the paper's features (``"paper"``: 5 x 5 RBFs of width
-        0.2 on the maze) and Fitted-Q's stopping rule on theta, which the library's defaults are not.
+        0.2 on the maze), Fitted-Q's stopping rule on theta and a refit as soon as the trigger fires, which
+        the library's defaults are not.
 
         :param reward_head: a head name ``TRLSD`` takes
         """
@@ -162,6 +163,7 @@ class Protocol:
             "reward_head_kwargs": self.head_kwargs(reward_head),
             "feature_map": "paper",
             "fqi_stop": "theta",
+            "refit_growth": 0.0,
         }
 
     def run_inputs(self, reward_head: str, multitask: bool) -> tuple:
