@@ -26,7 +26,7 @@ import numpy as np
 
 from sb3_trlsd.buffers import SharedDynamicsReplayBuffer
 from sb3_trlsd.data import Transitions
-from sb3_trlsd.fqi import FQIResult
+from sb3_trlsd.fqi import FQIResult, targets_rule_cap
 from sb3_trlsd.q_functions import QFunctions
 from sb3_trlsd.task_learner import TaskLearner
 
@@ -81,7 +81,8 @@ class Engine:
     :param q_functions: the Q-function of every run and task
     :param new_learner: makes the learning state of a task the first time its run meets it
     :param gamma: discount factor of the Fitted-Q refits
-    :param max_iterations: cap on the Fitted-Q iterations of a refit (None: the Q-functions' default)
+    :param max_iterations: cap on the Fitted-Q iterations of a refit (None: the Q-functions' default, and
+        under the ``"targets"`` rule at most ``targets_rule_cap(gamma, tol)``)
     :param tol: relative stopping tolerance of the Fitted-Q iterations
     :param stop_rule: the Fitted-Q iterations' stopping rule, one of ``sb3_trlsd.fqi.STOP_RULES``
     :param on_refit: called after each refit (e.g. to log it)
@@ -102,7 +103,11 @@ class Engine:
         self.q_functions = q_functions
         self.new_learner = new_learner
         self.gamma = gamma
-        self.max_iterations = q_functions.default_max_iterations if max_iterations is None else max_iterations
+        if max_iterations is None:
+            max_iterations = q_functions.default_max_iterations
+            if stop_rule == "targets":
+                max_iterations = min(max_iterations, targets_rule_cap(gamma, tol))
+        self.max_iterations = max_iterations
         self.tol = tol
         self.stop_rule = stop_rule
         self.on_refit = on_refit

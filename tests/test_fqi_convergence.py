@@ -6,7 +6,14 @@ import numpy as np
 import pytest
 
 from sb3_trlsd.feature_maps import RBFGrid
-from sb3_trlsd.fqi import FQICapWarning, LinearFQISolver, fit_linear_fqi, fit_linear_fqi_runs, return_bounds
+from sb3_trlsd.fqi import (
+    FQICapWarning,
+    LinearFQISolver,
+    fit_linear_fqi,
+    fit_linear_fqi_runs,
+    return_bounds,
+    targets_rule_cap,
+)
 
 GAMMA = 0.9
 MOVES = np.array([[0.0, -1.0], [-1.0, 0.0], [0.0, 1.0], [1.0, 0.0]])
@@ -120,9 +127,9 @@ def test_float32_rounding_keeps_theta_moving_but_not_the_targets(rbf_data, refer
 @pytest.mark.parametrize("tol", [1e-3, 1e-5])
 def test_the_targets_rule_reaches_the_fixed_point_within_its_tolerance(rbf_data, reference, tol):
     """
-    Stopped when the targets move by at most tol * (high - low), the iterates of a contraction of factor
-    gamma in the max norm are within gamma / (1 - gamma) * tol * (high - low) of the fixed point; the
-    projection onto the RBFs is not exactly such a contraction: twice that bound is checked.
+    Stopped when the targets' RMS change is at most tol * (high - low), the iterates of a contraction of
+    factor gamma are within gamma / (1 - gamma) * tol * (high - low) of the fixed point in that norm; the
+    largest distance over the rows is checked against twice that bound.
     """
     rewards = rbf_data[2]
     low, high = return_bounds(rewards, GAMMA)
@@ -181,3 +188,18 @@ def test_each_run_of_a_batch_stops_by_the_targets_rule_as_it_would_alone(rbf_dat
 def test_an_unknown_stop_rule_is_refused_by_name(rbf_data):
     with pytest.raises(ValueError, match="stop_rule"):
         solver_of(rbf_data).fit(rbf_data[2], gamma=GAMMA, stop_rule="policy")
+
+
+@pytest.mark.parametrize("tol", [1e-3, 1e-5])
+def test_a_contracting_fit_from_zero_meets_the_targets_rule_well_within_its_default_cap(rbf_data, tol):
+    """
+    The default cap of a "targets" fit is three times the iterations a gamma-contraction needs to shrink a
+    change of the whole return scale to tol: 198 at gamma 0.9 and tol 1e-3. A fit that contracts, started
+    from theta = 0 (the farthest start), stops within a third of it.
+    """
+    cap = targets_rule_cap(GAMMA, tol)
+    assert cap == 3 * int(np.ceil(np.log(tol) / np.log(GAMMA)))
+    result = solver_of(rbf_data).fit(
+        rbf_data[2], gamma=GAMMA, tol=tol, stop_rule="targets", max_iterations=cap
+    )
+    assert result.converged and result.iterations <= cap / 3

@@ -23,6 +23,7 @@ from sb3_trlsd.fqi.targets import (
     bellman_targets_by_action,
     linear_q_values,
     return_bounds,
+    targets_rule_cap,
 )
 
 __all__ = [
@@ -43,4 +44,5 @@ __all__ = [
     "linear_q_values",
     "make_q_network",
     "return_bounds",
+    "targets_rule_cap",
 ]

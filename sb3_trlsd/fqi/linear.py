@@ -201,8 +201,8 @@ class LinearFQISolver:
         :param tol: tolerance of the stopping rule; with float32 storage, a tol below 64 float32 epsilons
             (7.6e-6), which rounding would never let the iterations meet, is raised to it
         :param stop_rule: ``"theta"`` (default): stop when max |theta_new - theta| <= tol * (1 +
-            max |theta_new|); ``"targets"``: when the Bellman targets move by max |y_new - y| <= tol times the
-            return scale (see ``fit_linear_fqi_runs``)
+            max |theta_new|); ``"targets"``: when the Bellman targets move by sqrt(mean (y_new - y)^2) <= tol
+            times the return scale (see ``fit_linear_fqi_runs``)
         :return: theta, iterations run, the RMS Bellman residual and whether the rule was met (a fit that
             stops at ``max_iterations`` without meeting it warns, ``FQICapWarning``)
         """
@@ -257,9 +257,9 @@ def fit_linear_fqi(
     :param ridge: Tikhonov regularisation of each projection (default 1e-3, see ``LinearFQISolver``)
     :param stop_rule: ``"theta"`` (default): stop when max |theta_new - theta| <= tol * (1 + max |theta_new|),
         a tolerance relative to the scale of theta (optimistic rewards make it large) and absolute below 1;
-        ``"targets"``: when max |y_new - y| <= tol * (high - low) of ``return_bounds``, the change of the
-        Bellman targets relative to the return scale, blind to the directions of theta the data does not see
-        (see ``fit_linear_fqi_runs``)
+        ``"targets"``: when sqrt(mean (y_new - y)^2) <= tol * (high - low) of ``return_bounds``, the RMS
+        change of the Bellman targets relative to the return scale, blind to the directions of theta the data
+        does not see (see ``fit_linear_fqi_runs``)
     :return: theta (n_actions, k), iterations run, the RMS Bellman residual sqrt(mean (y - X theta)^2) of
         the final theta, whether the stopping rule was met and the last change it measured
     """

@@ -255,11 +255,13 @@ class _BatchedFit:
             old, new = thetas
             step, scale = np.abs(new - old).max(axis=(1, 2)), 1.0 + np.abs(new).max(axis=(1, 2))
             return step <= tol * scale, step / scale
-        # max |y_new - y| over the rows; padded own rows have y = 0 before and after.
-        change = np.zeros(len(self.active))
+        # RMS of y_new - y over each run's rows; padded own rows have y = 0 before and after.
+        squares = np.zeros(len(self.active))
         for old_y, new_y in zip(*targets, strict=True):
             if old_y.shape[1]:
-                change = np.maximum(change, np.abs(new_y - old_y).max(axis=1))
+                squares += np.sum(np.square(new_y - old_y, dtype=np.float64), axis=1)
+        n_rows = np.array([self.runs[r].n_rows for r in self.active], dtype=np.float64)
+        change = np.sqrt(squares / n_rows)
         # Relative to the return scale; a run whose rewards are all 0 has targets 0: no change.
         change = np.divide(change, self.scale, out=np.zeros_like(change), where=self.scale > 0)
         return change <= tol, change
@@ -303,10 +305,12 @@ def fit_linear_fqi_runs(
         - ``"theta"`` (default, the rule every fit had so far): max |theta_new - theta| <= tol * (1 +
           max |theta_new|). It can run to the cap while Q has converged: with float32 features and an
           ill-conditioned Gram matrix, rounding keeps moving theta where the data barely constrains it;
-        - ``"targets"``: max |y_new - y| <= tol * (high - low) over the run's rows, the Bellman targets'
-          change relative to the run's return scale (``return_bounds``). Where the iterations contract with
-          factor rho, the targets are then within rho / (1 - rho) * tol * (high - low) of their fixed
-          point's (rho <= gamma for a contraction in the max norm)
+        - ``"targets"``: sqrt(mean (y_new - y)^2) <= tol * (high - low) over the run's rows, the Bellman
+          targets' RMS change relative to the run's return scale (``return_bounds``). Where the iterations
+          contract with factor rho in that norm, the targets are then within rho / (1 - rho) * tol *
+          (high - low) of their fixed point's. The RMS, not the largest change: where the greedy action
+          flips back and forth on a few rows (approximate value iteration need not converge), their
+          targets keep moving by a few thousandths of the scale and the largest change never settles
     :return: one result per run
     """
     solvers = [solver for solver in (shared, *own) if solver is not None]

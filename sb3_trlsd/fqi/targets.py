@@ -6,6 +6,7 @@ bootstrap, as a trajectory reset is not the end of the task.
 
 from __future__ import annotations
 
+import math
 import warnings
 from dataclasses import dataclass
 
@@ -24,6 +25,7 @@ __all__ = [
     "bellman_targets_by_action",
     "linear_q_values",
     "return_bounds",
+    "targets_rule_cap",
     "warn_at_cap",
 ]
 
@@ -43,12 +45,32 @@ DEFAULT_RIDGE = 1e-3
 #   ill-conditioned Gram matrix (overlapping RBFs: condition number 1e6 for 10 x 10 RBFs of width 0.1),
 #   rounding moves theta by ~1e-3 of its scale along the directions the data barely sees, at every
 #   iteration: this rule then runs to the cap while the Q-values on the data have long stopped moving;
-# - "targets": max |y_new - y| <= tol * (high - low) of ``return_bounds``, the Bellman targets' change
-#   relative to the scale of the returns. The next theta is a function of the targets alone, so this is the
-#   change the iterations can still make to Q on the data, blind to theta's unseen directions.
+# - "targets": sqrt(mean (y_new - y)^2) <= tol * (high - low) of ``return_bounds``, the Bellman targets' RMS
+#   change relative to the scale of the returns. The next theta is a function of the targets alone, so this
+#   is the change the iterations can still make to Q on the data, blind to theta's unseen directions (and to
+#   a greedy action that flips back and forth on a few rows).
 STOP_RULES = ("theta", "targets")
 # "theta" keeps every existing fit as it was, to the bit; "targets" is the rule to choose off the maze.
 DEFAULT_STOP_RULE = "theta"
+# The cap of a "targets" fit, in units of the iterations a gamma-contraction needs to bring a change of the
+# whole return scale below tol: a fit still moving after three times that is not contracting, and more
+# iterations of it cost time without reaching the rule (the cap's warning says so instead).
+CONTRACTION_MARGIN = 3
+
+
+def targets_rule_cap(gamma: float, tol: float) -> int:
+    """
+    The iterations after which a fit under the ``"targets"`` rule stops: ``CONTRACTION_MARGIN`` times
+    ceil(ln(tol) / ln(gamma)), the iterations a contraction of factor gamma needs to shrink a change of the
+    whole return scale (the targets lie within it) to ``tol`` of it.
+
+    :param gamma: discount factor in [0, 1)
+    :param tol: the rule's tolerance, in (0, 1)
+    :return: a cap >= 1
+    """
+    if gamma <= 0 or not 0 < tol < 1:
+        return CONTRACTION_MARGIN
+    return CONTRACTION_MARGIN * max(1, math.ceil(math.log(tol) / math.log(gamma)))
 
 
 class FQICapWarning(UserWarning):
