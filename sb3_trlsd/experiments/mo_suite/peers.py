@@ -16,18 +16,16 @@ online step (``StepRewards``), whatever loop drives the env.
   step: more than any other method here.
 - ``trlsd``: ``TRLSD("LinearPolicy", env, seed=...)`` with its defaults (``state_bounds`` where the family
   gives them), the source loaded with its rewards discarded, driven by ``act`` / ``add_online_transition``.
-- ``trlsd-reward-given``: TRLSD whose reward head of the target task is fitted, before the first step, on
-  the TRUE target rewards w_target . r_vec of every source transition, with kappa = 0: the reward as well as
-  TRLSD's head can know it. TRLSD's ``"known"`` head takes the expected reward of a transition's START
-  state, and these envs pay on the transition (mostly on arriving somewhere), which no function of the
-  start state gives exactly; the ridge head fitted on the true rewards is the best start-state function
-  of them under the random policy's actions.
+- ``trlsd-reward-given``: the same TRLSD given the TRUE target rewards w_target . r_vec of every source
+  transition as samples of its reward head, with kappa = 0: what TRLSD reaches when the reward is as well
+  known as its head can know it (the same features, reward timing and Fitted-Q), the level TRLSD is
+  measured against.
 """
 
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, replace
 from typing import Any, SupportsFloat
 
@@ -49,7 +47,7 @@ from sb3_trlsd.experiments.mo_suite.sf_gpi import SuccessorFeaturesGPI
 from sb3_trlsd.feature_maps import make_feature_map
 from sb3_trlsd.trlsd import TRLSD
 
-__all__ = ["METHODS", "PeerResult", "StepRewards", "run_method"]
+__all__ = ["METHODS", "PeerResult", "Run", "StepRewards", "run_method", "trlsd_method"]
 
 GAMMA = 0.9  # TRLSD's default discount, and DQN_SETTINGS': every method optimises the same return
 RELABELLING_SETTINGS: dict[str, Any] = {"gradient_steps": 4, "target_update_interval": 100}
@@ -209,13 +207,21 @@ def _trlsd_online(model: TRLSD, env: StepRewards, seed: int, n_online: int) -> t
     return sum(model.policy_updates.values()) - updates_before, time.perf_counter() - start
 
 
-def _trlsd(
-    env: StepRewards, family: Family, source: SourceSet | None, seed: int, n_online: int
-) -> tuple[int, float]:
-    assert source is not None
-    model = TRLSD("LinearPolicy", env, seed=seed, state_bounds=family.state_bounds)
-    model.load_transitions(source.transitions, keep_rewards=False)
-    return _trlsd_online(model, env, seed, n_online)
+def trlsd_method(**settings: Any) -> Run:
+    """
+    TRLSD with its defaults but ``settings`` (keyword arguments of ``TRLSD``), the family's state bounds and
+    the source loaded with its rewards discarded (a suite's method, or a candidate of the tuning protocol).
+    """
+
+    def run(
+        env: StepRewards, family: Family, source: SourceSet | None, seed: int, n_online: int
+    ) -> tuple[int, float]:
+        assert source is not None
+        model = TRLSD("LinearPolicy", env, seed=seed, state_bounds=family.state_bounds, **settings)
+        model.load_transitions(source.transitions, keep_rewards=False)
+        return _trlsd_online(model, env, seed, n_online)
+
+    return run
 
 
 def _trlsd_reward_given(
@@ -234,8 +240,8 @@ def _trlsd_reward_given(
 
 # Method -> (label, whether it needs the source, its run).
 METHODS: dict[str, tuple[str, bool, Run]] = {
-    "trlsd": ("TRLSD (defaults)", True, _trlsd),
-    "trlsd-reward-given": ("TRLSD, true reward of the source, kappa 0", True, _trlsd_reward_given),
+    "trlsd": ("TRLSD (defaults)", True, trlsd_method()),
+    "trlsd-reward-given": ("TRLSD given the source's true rewards", True, _trlsd_reward_given),
     "sf-gpi": ("SF + GPI (sees the reward vectors)", True, _sf_gpi),
     "dqn-relabelling": ("DQN + relabelling buffer", True, _dqn(_relabelled)),
     "dqn-zero-source": ("DQN, source with zero reward", True, _dqn(_zero_rewards)),
@@ -245,7 +251,13 @@ METHODS: dict[str, tuple[str, bool, Run]] = {
 
 
 def run_method(
-    method: str, family: Family, task: int, seed: int, source: SourceSet | None, n_online: int
+    method: str,
+    family: Family,
+    task: int,
+    seed: int,
+    source: SourceSet | None,
+    n_online: int,
+    settings: Mapping[str, Any] | None = None,
 ) -> PeerResult:
     """
     One run of ``method`` on ``family``'s ``task``.
@@ -256,11 +268,16 @@ def run_method(
     :param seed: the run's seed (the model's, and that of the env's first reset)
     :param source: the source transitions (ignored by the methods without source)
     :param n_online: online transitions
+    :param settings: ``method="trlsd"`` only: keyword arguments of ``TRLSD`` other than its defaults
     :return: the run's rewards and timings
     """
     if method not in METHODS:
         raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
     _, needs_source, run = METHODS[method]
+    if settings:
+        if method != "trlsd":
+            raise ValueError(f"settings are TRLSD's: give them with method 'trlsd', not {method!r}")
+        run = trlsd_method(**settings)
     if needs_source and source is None:
         raise ValueError(f"method {method!r} needs the source transitions")
     start = time.perf_counter()

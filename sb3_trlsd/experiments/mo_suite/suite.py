@@ -35,7 +35,14 @@ REFERENCE = "trlsd-reward-given"  # the level TRLSD is measured against, above t
 
 
 def suite_run(
-    family_name: str, method: str, run: int, seed: int, split: str, n_source: int, n_online: int
+    family_name: str,
+    method: str,
+    run: int,
+    seed: int,
+    split: str,
+    n_source: int,
+    n_online: int,
+    settings: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
     """
     Run ``run`` of ``method`` on a family (a module-level function of its arguments alone, for the workers
@@ -48,6 +55,8 @@ def suite_run(
     :param split: the weights targeted, ``"evaluation"`` (or ``"tuning"``)
     :param n_source: random source transitions
     :param n_online: online transitions
+    :param settings: ``method="trlsd"`` only: TRLSD's keyword arguments other than its defaults (a candidate
+        of the tuning protocol)
     :return: the run's row: task, score, seconds, online ms per step, updates and reward curve
     """
     family = family_named(family_name)
@@ -57,7 +66,7 @@ def suite_run(
     source = None
     if METHODS[method][1]:
         source = collect_source(family, n_source, SOURCE_SEED + run_seed)
-    result: PeerResult = run_method(method, family, task, run_seed, source, n_online)
+    result: PeerResult = run_method(method, family, task, run_seed, source, n_online, settings)
     return {
         "run": run,
         "task": task,

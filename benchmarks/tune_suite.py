@@ -1,0 +1,87 @@
+"""The tuning protocol of TRLSD's defaults on the MO-Gymnasium suite: candidates scored on the TUNING weights.
+
+Each candidate is a set of TRLSD settings. It runs on every family of the suite (those that can run here), on
+the family's tuning target weights (disjoint from the evaluation weights the suite reports), with the same
+source transitions, seeds and budget as the suite, next to the random policy on the same runs. Printed per
+candidate and family: the mean gain over random (paired) ± standard error and ms per online step; and per
+candidate the number of families where the gain is above 0, and the mean over families of the gain divided
+by the family's spread of gains across candidates (so that no family's reward scale decides alone). A
+timing and a comparison, not a test. Usage::
+
+    python benchmarks/tune_suite.py [--runs 8] [--workers 2] [--families ...] [--out results/tuning]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from sb3_trlsd.experiments.jobs import run_jobs
+from sb3_trlsd.experiments.mo_suite.families import FAMILIES, available
+from sb3_trlsd.experiments.mo_suite.suite import suite_run
+
+# Each candidate: TRLSD's settings other than its defaults ({}: the defaults as they are).
+CANDIDATES: dict[str, dict[str, Any]] = {
+    "defaults": {},
+    "kappa=1": {"kappa": 1.0},
+    "kappa=0": {"kappa": 0.0},
+    "reward_timing=start_state": {"reward_timing": "start_state"},
+}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument(
+        "--families", nargs="+", default=[name for name, f in FAMILIES.items() if available(f)]
+    )
+    parser.add_argument("--candidates", nargs="+", default=list(CANDIDATES), choices=list(CANDIDATES))
+    parser.add_argument("--runs", type=int, default=8, help="runs per candidate and family")
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--out", type=Path, default=Path("results/tuning"))
+    parser.add_argument("--cache", type=Path, default=None, help="directory of finished runs to reuse")
+    args = parser.parse_args()
+    methods = [("random", None)] + [("trlsd", name) for name in args.candidates]
+    jobs = [
+        (
+            (name, method, run, 0, "tuning", FAMILIES[name].n_source, FAMILIES[name].n_online),
+            {"settings": CANDIDATES[candidate]} if candidate else {},
+        )
+        for name in args.families
+        for method, candidate in methods
+        for run in range(args.runs)
+    ]
+    rows = run_jobs(suite_run, jobs, args.workers, description="tuning runs", cache=args.cache)
+    gains: dict[str, dict[str, tuple[float, float, float]]] = {}
+    i = 0
+    for name in args.families:
+        random_rows = rows[i : i + args.runs]
+        i += args.runs
+        for candidate in args.candidates:
+            runs = rows[i : i + args.runs]
+            i += args.runs
+            gain = np.array([r["score"] - f["score"] for r, f in zip(runs, random_rows, strict=True)])
+            ms = float(np.mean([r["online_ms_per_step"] for r in runs]))
+            se = float(gain.std(ddof=1) / np.sqrt(len(gain))) if len(gain) > 1 else 0.0
+            gains.setdefault(candidate, {})[name] = (float(gain.mean()), se, ms)
+    print(f"{'candidate':<28}" + "".join(f"{name[:18]:>26}" for name in args.families))
+    for candidate, by_family in gains.items():
+        cells = "".join(f"{f'{m:+.3f} ± {s:.3f} ({ms:.1f} ms)':>26}" for m, s, ms in by_family.values())
+        print(f"{candidate:<28}{cells}")
+    spreads = {name: np.ptp([gains[c][name][0] for c in args.candidates]) or 1.0 for name in args.families}
+    print("\ncandidate                    above random by 2 SE   mean gain / family spread")
+    for candidate, by_family in gains.items():
+        above = sum(m - 2 * s > 0 for m, s, _ in by_family.values())
+        scaled = np.mean([by_family[name][0] / spreads[name] for name in args.families])
+        print(f"{candidate:<28} {above:>10d} of {len(args.families)} {scaled:>26.3f}")
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "tuning.json").write_text(
+        json.dumps({"runs": args.runs, "candidates": CANDIDATES, "gains": gains}, indent=1)
+    )
+
+
+if __name__ == "__main__":
+    main()
