@@ -37,13 +37,17 @@ def rst_blocks(path: Path) -> list[tuple[str, str, int]]:
             continue
         indent = len(match.group(1))
         body, cursor = [], index + 1
-        while cursor < len(lines) and (not lines[cursor].strip() or lines[cursor].startswith(" " * (indent + 1))):
+        while cursor < len(lines) and (
+            not lines[cursor].strip() or lines[cursor].startswith(" " * (indent + 1))
+        ):
             body.append(lines[cursor])
             cursor += 1
         body = [line for line in body if not line.strip().startswith(":")] if body else body
         code = "\n".join(body)
         width = min((len(line) - len(line.lstrip()) for line in body if line.strip()), default=0)
-        blocks.append((match.group(2), "\n".join(line[width:] for line in code.splitlines()).strip(), index + 1))
+        blocks.append(
+            (match.group(2), "\n".join(line[width:] for line in code.splitlines()).strip(), index + 1)
+        )
     return blocks
 
 
@@ -131,20 +135,40 @@ def run_cheap(argv: list[str], cwd: Path, tmp_path: Path) -> None:
         argv[argv.index("--out") + 1] = str(tmp_path / Path(argv[argv.index("--out") + 1]).name)
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
     result = subprocess.run(
-        [sys.executable, "-m", "sb3_trlsd", *argv[1:]], cwd=cwd, capture_output=True, text=True, timeout=300, env=env
+        [sys.executable, "-m", "sb3_trlsd", *argv[1:]],
+        cwd=cwd,
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env=env,
     )
-    assert result.returncode == 0, f"{' '.join(argv)}\n--- stdout\n{result.stdout}\n--- stderr\n{result.stderr}"
+    assert result.returncode == 0, (
+        f"{' '.join(argv)}\n--- stdout\n{result.stdout}\n--- stderr\n{result.stderr}"
+    )
 
 
 def test_the_docs_build_without_warnings(tmp_path: Path) -> None:
     pytest.importorskip("sphinx", reason="the docs extra (in dev) installs Sphinx")
     result = subprocess.run(
-        [sys.executable, "-m", "sphinx", "-W", "--keep-going", "-q", "-b", "html", str(DOCS), str(tmp_path / "html")],
+        [
+            sys.executable,
+            "-m",
+            "sphinx",
+            "-W",
+            "--keep-going",
+            "-q",
+            "-b",
+            "html",
+            str(DOCS),
+            str(tmp_path / "html"),
+        ],
         capture_output=True,
         text=True,
         timeout=600,
     )
-    assert result.returncode == 0, f"sphinx-build failed\n--- stdout\n{result.stdout}\n--- stderr\n{result.stderr}"
+    assert result.returncode == 0, (
+        f"sphinx-build failed\n--- stdout\n{result.stdout}\n--- stderr\n{result.stderr}"
+    )
 
 
 def test_every_page_is_checked() -> None:

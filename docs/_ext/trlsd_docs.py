@@ -59,9 +59,13 @@ class ResultsTable(SphinxDirective):
     def run(self) -> list[nodes.Node]:
         path = Path(self.env.srcdir) / self.arguments[0]
         self.env.note_dependency(str(path))
-        columns = [c.strip() for c in self.options["columns"].split(";")] if "columns" in self.options else None
+        columns = (
+            [c.strip() for c in self.options["columns"].split(";")] if "columns" in self.options else None
+        )
         header, body = results_rows(json.loads(path.read_text()), columns)
-        table = table_node([[nodes.Text(c)] for c in header], [[[nodes.Text(c)] for c in row] for row in body])
+        table = table_node(
+            [[nodes.Text(c)] for c in header], [[[nodes.Text(c)] for c in row] for row in body]
+        )
         if "caption" in self.options:
             table.insert(0, nodes.title(text=self.options["caption"]))
         return [table]
