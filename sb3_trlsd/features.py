@@ -17,7 +17,7 @@ DIRECT_POINTS = 4  # up to this many query points, distances are taken directly 
 
 def squared_distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """
-    ||a_i - b_j||^2 for all pairs, by the expansion |a|^2 + |b|^2 - 2 a.b (one matrix product).
+    ``||a_i - b_j||^2`` for all pairs, by the expansion ``|a|^2 + |b|^2 - 2 a.b`` (one matrix product).
 
     Both sets are first centred on the mean of ``b``: the expansion cancels catastrophically for points far
     from the origin and close to each other, and centring brings them near it. Rounding can still leave
