@@ -260,7 +260,7 @@ def suite_command(args: argparse.Namespace) -> int:
     """
     from sb3_trlsd.experiments.mo_suite.families import FAMILIES as SUITE_FAMILIES
     from sb3_trlsd.experiments.mo_suite.families import available
-    from sb3_trlsd.experiments.mo_suite.suite import run_suite, suite_table
+    from sb3_trlsd.experiments.mo_suite.suite import goal_table, run_suite, suite_table
 
     if args.family == "all":
         families = [name for name, family in SUITE_FAMILIES.items() if available(family)]
@@ -295,7 +295,7 @@ def suite_command(args: argparse.Namespace) -> int:
 
     status = run_in_turn("benchmark-suite", families, run_one, cache)
     if len(done) > 1:
-        table = suite_table(done)
+        table = f"{suite_table(done)}\n\n{goal_table(done)}"
         (out / "mo_suite_table.md").write_text(table + "\n")
         print(table)
     return status

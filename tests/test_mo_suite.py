@@ -20,7 +20,7 @@ from sb3_trlsd.experiments.mo_suite.families import (
     weight_split,
 )
 from sb3_trlsd.experiments.mo_suite.peers import METHODS, run_method
-from sb3_trlsd.experiments.mo_suite.suite import run_suite
+from sb3_trlsd.experiments.mo_suite.suite import goal_table, paired_gain, run_suite
 
 GRID_FAMILIES = ["deep-sea-treasure-v0", "resource-gathering-v0", "four-room-v0"]
 
@@ -153,3 +153,34 @@ def test_run_suite_refuses_unknown_methods(tmp_path):
     """A misspelt method is named before anything runs."""
     with pytest.raises(ValueError, match="methods must be among"):
         run_suite("deep-sea-treasure-v0", tmp_path, runs=1, methods=["trlsd", "dqn2"])
+
+
+def test_settings_reach_trlsd_and_no_other_method():
+    """A candidate's settings are TRLSD's keyword arguments; given to another method they are refused."""
+    family = FAMILIES["deep-sea-treasure-v0"]
+    task = int(family.tasks_of("tuning")[0])
+    source = collect_source(family, 300, seed=0)
+    with pytest.raises(ValueError, match="kappa"):
+        run_method("trlsd", family, task, seed=0, source=source, n_online=5, settings={"kappa": -1.0})
+    with pytest.raises(ValueError, match="settings are TRLSD's"):
+        run_method("dqn", family, task, seed=0, source=source, n_online=5, settings={"kappa": 1.0})
+
+
+def test_the_goal_table_says_which_goal_holds_from_the_paired_differences():
+    """Above random and ahead of DQN mean by more than 2 paired standard errors; the reference at 70%."""
+    rows = {
+        "trlsd": [{"score": s} for s in (1.0, 1.2, 1.1, 1.3)],
+        "dqn": [{"score": s} for s in (0.9, 1.2, 1.0, 1.3)],
+        "random": [{"score": s} for s in (0.0, 0.1, 0.0, 0.1)],
+    }
+    gain, versus = paired_gain(rows["trlsd"], rows["random"]), paired_gain(rows["trlsd"], rows["dqn"])
+    assert gain["mean"] == pytest.approx(1.1) and versus["mean"] == pytest.approx(0.05)
+    data = {
+        "parameters": {"family": "f"},
+        "results": {"trlsd": {"gain_over_random": gain}},
+        "trlsd_minus_dqn": versus,
+        "trlsd_fraction_of_reward_given": 0.65,
+    }
+    row = goal_table([data]).splitlines()[-1]
+    # 1.1 ± 0.058 above random; 0.05 ± 0.029 ahead of DQN is within 2 SE; 65% is short of 70%.
+    assert row.split(" | ")[2:] == ["yes", "+0.050 ± 0.029", "**no**", "65%", "**no** |"]

@@ -27,7 +27,7 @@ from sb3_trlsd.experiments.mo_suite.peers import METHODS, PeerResult, run_method
 from sb3_trlsd.experiments.reporting import mean_and_standard_error, summary, write_json
 from sb3_trlsd.experiments.statistics import aggregate_mean
 
-__all__ = ["DEFAULT_RUNS", "SOURCE_SEED", "run_suite", "suite_run", "suite_table"]
+__all__ = ["DEFAULT_RUNS", "SOURCE_SEED", "goal_table", "run_suite", "suite_run", "suite_table"]
 
 DEFAULT_RUNS = 20
 SOURCE_SEED = 10_000
@@ -103,8 +103,9 @@ def aggregate(rows: Sequence[Mapping[str, Any]], seed: int = 0) -> dict[str, Any
 
 def paired_gain(rows: Sequence[Mapping[str, Any]], floor: Sequence[Mapping[str, Any]]) -> dict[str, float]:
     """
-    Mean ± standard error of a method's score minus the random policy's on the same run (the same target
-    weight and seed): the scale of the rewards changes with the weights, and the pairing removes it.
+    Mean ± standard error of a method's score minus another's (the random policy's, or DQN's) on the same
+    run (the same target weight and seed): the scale of the rewards changes with the weights, and the
+    pairing removes it.
     """
     gains = np.array([row["score"] - other["score"] for row, other in zip(rows, floor, strict=True)])
     mean, se = mean_and_standard_error(gains)
@@ -237,6 +238,9 @@ def run_suite(
         time.perf_counter() - started,
         results=results,
         trlsd_fraction_of_reward_given=reference_fraction(results),
+        trlsd_minus_dqn=paired_gain(by_method["trlsd"], by_method["dqn"])
+        if {"trlsd", "dqn"} <= set(by_method)
+        else None,
     )
     write_json(out / f"{name}.json", data)
     return data
@@ -265,3 +269,33 @@ def suite_table(datas: Sequence[Mapping[str, Any]]) -> str:
                 f"{entry['online_ms_per_step']:.2f} | {entry['runs']} |"
             )
     return "\n".join(lines)
+
+
+def goal_table(datas: Sequence[Mapping[str, Any]]) -> str:
+    """
+    The Markdown table of TRLSD against its goals, one row per family: its gain over random (paired), its
+    score minus DQN's (paired) in standard errors, and its fraction of the reward-given level's gain over
+    random; each with whether it holds (above random by 2 SE, ahead of DQN by 2 SE, at least 70%).
+    """
+    lines = [
+        "| family | TRLSD gain over random | above random | TRLSD - DQN | ahead of DQN by 2 SE "
+        "| fraction of reward-given | >= 70% |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for data in datas:
+        gain = data["results"].get("trlsd", {}).get("gain_over_random")
+        versus, fraction = data.get("trlsd_minus_dqn"), data.get("trlsd_fraction_of_reward_given")
+        if gain is None or versus is None:
+            continue
+        lines.append(
+            f"| {data['parameters']['family']} | {gain['mean']:+.3f} ± {gain['se']:.3f} | "
+            f"{_yes(gain['mean'] > 2 * gain['se'])} | {versus['mean']:+.3f} ± {versus['se']:.3f} | "
+            f"{_yes(versus['mean'] > 2 * versus['se'])} | "
+            f"{'n/a' if fraction is None else f'{fraction:.0%}'} | "
+            f"{'n/a' if fraction is None else _yes(fraction >= 0.7)} |"
+        )
+    return "\n".join(lines)
+
+
+def _yes(holds: bool) -> str:
+    return "yes" if holds else "**no**"
