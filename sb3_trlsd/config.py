@@ -121,7 +121,7 @@ class TRLSDConfig:
     Bad values raise a ``ValueError`` naming the setting when the config is made.
 
     :param reward_head: a name of ``HEAD_NAMES`` or a ``RewardHead`` copied for each task
-    :param kappa: optimism (eq. 9, 10); 0 is the non-optimistic method
+    :param kappa: optimism (eq. 9, 10), in reward units; 0 is the non-optimistic method
     :param sigma: width of the similarity in W (eq. 8): for eq. 6 a fraction of the state box, one or one per
         dimension (None: ``default_kernel_width(d)``); for eq. 7 a distance between feature vectors
         (None: 0.2)
@@ -152,7 +152,7 @@ class TRLSDConfig:
     """
 
     reward_head: str | RewardHead = "ridge"
-    kappa: float = 0.1
+    kappa: float = 0.0
     sigma: Widths = None
     similarity: str = "state"
     update_ratio: float = 2.0
