@@ -28,6 +28,8 @@ from sb3_trlsd.experiments.mo_suite.suite import suite_run
 CANDIDATES: dict[str, dict[str, Any]] = {
     "defaults": {},
     "kappa=1": {"kappa": 1.0},
+    "kappa=0.03": {"kappa": 0.03},
+    "kappa=0.01": {"kappa": 0.01},
     "kappa=0": {"kappa": 0.0},
     "reward_timing=start_state": {"reward_timing": "start_state"},
 }
