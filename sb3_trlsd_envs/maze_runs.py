@@ -1,6 +1,6 @@
 """Several mazes stepped at once: one vectorised move for all of them, each drawing from its own generator.
 
-A batch of runs in lockstep (``sb3_trlsd.experiments.lockstep``) steps the mazes of all its runs with
+A batch of runs in lockstep (``sb3_trlsd_lab.execution.lockstep``) steps the mazes of all its runs with
 ``step_mazes``; ``SharedDynamicsMaze.step`` is ``step_mazes`` with one maze. Each maze draws what a step of
 it alone draws, in the same order (its reward noise, its move noise and rebounds, its end-of-trajectory
 draw), so a maze stepped in a batch follows the trajectory it follows alone with the same seed.

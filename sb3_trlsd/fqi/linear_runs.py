@@ -1,6 +1,6 @@
 """Linear Fitted-Q Iteration of several runs at once (eq. 3-4): the iterations of ``LinearFQISolver.fit``.
 
-Runs of a batch in lockstep (``sb3_trlsd.lockstep``) that share their source transitions share their rows:
+Runs of one ``Engine`` (``sb3_trlsd.engine``) that share their source transitions share their rows:
 the products of eq. 4 over them are one matrix-matrix product for every run still iterating. A fit of one
 run (``LinearFQISolver.fit``, and so ``TRLSD``) is this with a batch of one.
 """
