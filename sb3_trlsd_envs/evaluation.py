@@ -1,15 +1,19 @@
-"""Evaluating greedy policies on the maze, many runs at once, by their expected (noise-free) reward."""
+"""Evaluating by the expected (noise-free) reward: greedy policies on the maze, many runs at once, and the
+envs of this package under their wrappers (``task_family_of``)."""
 
 from __future__ import annotations
 
 from collections.abc import Callable
 
+import gymnasium as gym
 import numpy as np
 
 from sb3_trlsd_envs.dynamics import DEFAULT_WALLS, make_walls, maze_step
+from sb3_trlsd_envs.maze import SharedDynamicsMaze
 from sb3_trlsd_envs.maze_tasks import expected_reward
+from sb3_trlsd_envs.multitask import TaskFamilyEnv
 
-__all__ = ["greedy_expected_rewards"]
+__all__ = ["greedy_expected_rewards", "task_family_of"]
 
 QFunction = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
@@ -48,3 +52,17 @@ def greedy_expected_rewards(
         reset = rng.random(len(tasks)) < termination_prob
         states[reset] = rng.uniform(0.0, 5.0, size=(int(reset.sum()), 2))
     return rewards
+
+
+def task_family_of(env: gym.Env) -> SharedDynamicsMaze | TaskFamilyEnv:
+    """
+    The env of this package under ``env``'s wrappers: its ``task``, ``state`` and ``expected_reward``.
+
+    :param env: the maze, the four rooms or the goal cart-pole, wrapped or not
+    :return: ``env.unwrapped``
+    :raises TypeError: for any other env
+    """
+    unwrapped = env.unwrapped
+    if not isinstance(unwrapped, (SharedDynamicsMaze, TaskFamilyEnv)):
+        raise TypeError(f"expected an env of sb3_trlsd_envs, got {type(unwrapped).__name__}")
+    return unwrapped

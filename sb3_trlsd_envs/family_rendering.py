@@ -91,7 +91,7 @@ def render_four_rooms(
 def draw_cartpole(
     ax: Any,
     state: np.ndarray,
-    targets: Sequence[float],
+    targets: Sequence[float] | np.ndarray,
     goal_width: float,
     *,
     target: int | None = None,
@@ -151,7 +151,7 @@ def draw_cartpole(
 
 
 def render_cartpole(
-    state: np.ndarray, targets: Sequence[float], goal_width: float, **overlays: Any
+    state: np.ndarray, targets: Sequence[float] | np.ndarray, goal_width: float, **overlays: Any
 ) -> np.ndarray:
     """The cart-pole as a ``(160, 540, 3)`` uint8 image; ``overlays`` as in :func:`draw_cartpole`."""
     return _image(lambda ax: draw_cartpole(ax, state, targets, goal_width, **overlays), 540, 160)

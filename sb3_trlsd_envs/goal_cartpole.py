@@ -60,9 +60,10 @@ def cartpole_step(states: np.ndarray, actions: np.ndarray) -> tuple[np.ndarray, 
     if actions.size and (not np.issubdtype(actions.dtype, np.integer) or not np.isin(actions, (0, 1)).all()):
         raise ValueError(f"action must be 0 (push left) or 1 (push right), got {np.unique(actions)}")
     vector = CartPoleVectorEnv(num_envs=len(states))
-    vector.state = states.T.copy()  # its batch is (4, n); none is done, so none is reset
+    # Its batch is (4, n); none is done, so none is reset. (Gymnasium declares the attribute as None.)
+    vector.state = states.T.copy()  # type: ignore[assignment]
     _, _, terminated, _, _ = vector.step(actions.astype(np.int64))
-    return vector.state.T.copy(), terminated
+    return np.asarray(vector.state).T.copy(), terminated
 
 
 def cartpole_terminal(states: np.ndarray) -> np.ndarray:
@@ -201,7 +202,13 @@ class GoalCartPole(TaskFamilyEnv):
     @property
     def state(self) -> np.ndarray:
         """The dynamics' state ``(x, x_dot, theta, theta_dot)``, unclipped."""
-        return self.cartpole.state
+        state = self.cartpole.state
+        assert state is not None, "set from the constructor on"
+        return state
+
+    @state.setter
+    def state(self, value: np.ndarray) -> None:
+        self.cartpole.state = value
 
     def expected_reward(self, states: np.ndarray, task: int | None = None) -> np.ndarray:
         """Noise-free E[R_task(s)] for an ``(n, 4)`` array of states (default: the current task)."""
