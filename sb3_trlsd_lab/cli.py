@@ -43,7 +43,7 @@ def usable_directory(path: str | os.PathLike, option: str) -> Path:
     """
     try:
         os.makedirs(path, exist_ok=True)
-        with tempfile.NamedTemporaryFile(dir=path):
+        with tempfile.NamedTemporaryFile(dir=os.fspath(path)):
             pass
     except OSError as error:
         reason = "a file has that name" if os.path.isfile(path) else error.strerror
@@ -87,8 +87,9 @@ def stopped_by_signals() -> Iterator[list[int]]:
         if len(received) == 1:
             raise KeyboardInterrupt
         for child in multiprocessing.active_children():  # loky's workers are multiprocessing processes
-            with suppress(ProcessLookupError):
-                os.kill(child.pid, signal.SIGKILL)
+            if child.pid is not None:  # None: not started
+                with suppress(ProcessLookupError):
+                    os.kill(child.pid, signal.SIGKILL)
         os.write(sys.stderr.fileno(), b"sb3-trlsd: interrupted again, stopped at once\n")
         os._exit(128 + signum)
 

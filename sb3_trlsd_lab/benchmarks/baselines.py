@@ -15,8 +15,10 @@ import gymnasium as gym
 import numpy as np
 import torch
 from stable_baselines3 import DQN
+from stable_baselines3.common.buffers import DictReplayBuffer
 
 from sb3_trlsd.data import Transitions
+from sb3_trlsd_envs.evaluation import task_family_of
 
 __all__ = ["DQN_SETTINGS", "ExpectedRewards", "dqn_rewards", "fill_replay_buffer", "random_rewards"]
 
@@ -49,8 +51,8 @@ class ExpectedRewards(gym.Wrapper):
 
     def step(self, action: Any) -> tuple[Any, SupportsFloat, bool, bool, dict[str, Any]]:
         """Record the expected reward of the current state, then step."""
-        unwrapped = self.env.unwrapped
-        self.expected.append(float(unwrapped.expected_reward(np.asarray(unwrapped.state)[None])[0]))
+        family = task_family_of(self.env)
+        self.expected.append(float(family.expected_reward(np.asarray(family.state)[None])[0]))
         return self.env.step(action)
 
 
@@ -75,10 +77,12 @@ def fill_replay_buffer(model: DQN, source: Transitions, task: int) -> None:
     :param source: the transitions (their rewards and tasks are ignored)
     :param task: the task index written in the observations
     """
+    buffer = model.replay_buffer
+    assert isinstance(buffer, DictReplayBuffer), "a DQN on Dict observations has SB3's DictReplayBuffer"
     task_column = np.array([task])
     for row in range(len(source.actions)):
         terminated, truncated = bool(source.terminations[row]), bool(source.truncations[row])
-        model.replay_buffer.add(
+        buffer.add(
             {"state": source.states[row : row + 1], "task": task_column},
             {"state": source.next_states[row : row + 1], "task": task_column},
             source.actions[row : row + 1],
@@ -103,7 +107,7 @@ def dqn_rewards(
     with one_torch_thread():
         model = DQN("MultiInputPolicy", env, seed=seed, device="cpu", **DQN_SETTINGS)
         if source is not None:
-            fill_replay_buffer(model, source, int(env.unwrapped.task))
+            fill_replay_buffer(model, source, int(task_family_of(env).task))
         model.learn(total_timesteps=n_steps)
     return np.array(env.expected[:n_steps]), model._n_updates
 

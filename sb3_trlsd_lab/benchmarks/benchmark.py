@@ -22,6 +22,7 @@ import gymnasium as gym
 import numpy as np
 
 from sb3_trlsd.data import collect_transitions
+from sb3_trlsd.observations import task_count_of
 from sb3_trlsd.trlsd import TRLSD
 from sb3_trlsd_envs import FOUR_ROOMS_ID, GOAL_CARTPOLE_ID, MAZE_ID
 from sb3_trlsd_lab.benchmarks.baselines import DQN_SETTINGS, ExpectedRewards, dqn_rewards, random_rewards
@@ -106,7 +107,7 @@ def benchmark_run(
     """
     start = time.perf_counter()
     env_id = FAMILIES[family][0]
-    n_tasks = gym.make(env_id).observation_space["task"].n
+    n_tasks = task_count_of(gym.make(env_id).observation_space)
     env = ExpectedRewards(gym.make(env_id, task=run % n_tasks))
     run_seed = seed + run
     source = None
@@ -164,7 +165,7 @@ def benchmark(
     # The sizes are resolved here, not in the workers, so that a cached run's key holds them.
     n_source = SOURCE_TRANSITIONS if n_source is None else n_source
     n_online = budget if n_online is None else n_online
-    jobs = [
+    jobs: list[tuple[tuple, dict[str, Any]]] = [
         ((family, method, run, seed, n_source, n_online), {}) for method in methods for run in range(runs)
     ]
     records = run_jobs(

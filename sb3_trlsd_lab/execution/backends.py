@@ -18,7 +18,7 @@ import signal
 import socket
 import threading
 import warnings
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Generator, Sequence
 from dataclasses import dataclass
 from types import ModuleType
 from typing import Any, TypeVar
@@ -116,7 +116,7 @@ def finished(
     indices: list[int],
     workers: int,
     backend: Backend,
-) -> Iterator[tuple[int, Result]]:
+) -> Generator[tuple[int, Result], None, None]:
     """
     ``(index, result)`` of the jobs ``indices`` as they finish.
 
@@ -136,7 +136,7 @@ def finished(
 
 def _loky_finished(
     function: Callable[..., Result], jobs: Sequence[tuple[tuple, dict]], indices: list[int], workers: int
-) -> Iterator[tuple[int, Result]]:
+) -> Generator[tuple[int, Result], None, None]:
     # One run per dispatch (batch_size=1) and 2 per worker queued at most: a finished run is kept at once.
     parallel = Parallel(n_jobs=workers, backend="loky", return_as="generator_unordered", batch_size=1)
     results = parallel(delayed(_loky_worker_call)(index, function, *jobs[index]) for index in indices)
@@ -172,7 +172,7 @@ def _ray_finished(
     indices: list[int],
     workers: int,
     address: str | None,
-) -> Iterator[tuple[int, Result]]:
+) -> Generator[tuple[int, Result], None, None]:
     ray = import_ray()
     if not ray.is_initialized():
         _connect(ray, address, workers)

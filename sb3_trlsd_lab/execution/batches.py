@@ -23,6 +23,7 @@ import numpy as np
 
 from sb3_trlsd.data import Transitions, collect_transitions
 from sb3_trlsd_envs import MAZE_ID, N_TASKS
+from sb3_trlsd_envs.evaluation import task_family_of
 from sb3_trlsd_lab.execution.backends import LOKY, Backend
 from sb3_trlsd_lab.execution.env_batches import env_batch
 from sb3_trlsd_lab.execution.jobs import run_jobs
@@ -158,7 +159,7 @@ def _records(
     for env, run in zip(envs, lockstep_records, strict=True):
         rewards = np.empty(len(run.tasks))
         for task in np.unique(run.tasks):
-            rewards[run.tasks == task] = env.unwrapped.expected_reward(
+            rewards[run.tasks == task] = task_family_of(env).expected_reward(
                 run.states[run.tasks == task], int(task)
             )
         records.append(

@@ -39,7 +39,9 @@ class GymEnvBatch:
         states = np.array([state[0] for state, _ in pairs], dtype=np.float32).reshape(-1, self.state_dim)
         return states, np.array([task[0] for _, task in pairs], dtype=np.int64)
 
-    def reset(self, runs: Sequence[int], seeds: Sequence[int | None]) -> tuple[np.ndarray, np.ndarray]:
+    def reset(
+        self, runs: Sequence[int] | np.ndarray, seeds: Sequence[int | None]
+    ) -> tuple[np.ndarray, np.ndarray]:
         return self._split(
             [self.envs[run].reset(seed=seed)[0] for run, seed in zip(runs, seeds, strict=True)]
         )
@@ -61,12 +63,17 @@ class MazeBatch(GymEnvBatch):
 
     def __init__(self, envs: Sequence[gym.Env]):
         super().__init__(envs)
-        self.mazes = [env.unwrapped for env in self.envs]
+        self.mazes: list[SharedDynamicsMaze] = []
+        for env in self.envs:
+            assert isinstance(env.unwrapped, SharedDynamicsMaze), "env_batch gives mazes alone to MazeBatch"
+            self.mazes.append(env.unwrapped)
         limits = [_time_limit(env) for env in self.envs]
         self.max_episode_steps = np.array([np.inf if limit is None else limit for limit in limits])
         self.elapsed = np.zeros(len(self.envs), dtype=np.int64)
 
-    def reset(self, runs: Sequence[int], seeds: Sequence[int | None]) -> tuple[np.ndarray, np.ndarray]:
+    def reset(
+        self, runs: Sequence[int] | np.ndarray, seeds: Sequence[int | None]
+    ) -> tuple[np.ndarray, np.ndarray]:
         self.elapsed[np.asarray(runs, dtype=np.int64)] = 0
         return super().reset(runs, seeds)
 

@@ -69,15 +69,15 @@ def run_jobs(
         of runs kept
     """
     run_cache = None if cache is None else RunCache(cache)
-    paths = [None if run_cache is None else run_cache.path_of(function, *job) for job in jobs]
+    paths = [] if run_cache is None else [run_cache.path_of(function, *job) for job in jobs]
     results: list[Any] = [None] * len(jobs)
     missing: list[int] = []  # indices of the jobs to run
-    for index, path in enumerate(paths):
-        if path is None or not path.exists():
+    for index in range(len(jobs)):
+        if run_cache is None or not paths[index].exists():
             missing.append(index)
             continue
         try:
-            results[index] = run_cache.load(path)
+            results[index] = run_cache.load(paths[index])
         except ValueError as error:
             warnings.warn(f"{error}: running it again", stacklevel=2)
             missing.append(index)

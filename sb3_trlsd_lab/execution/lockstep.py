@@ -16,6 +16,7 @@ from typing import Protocol
 
 import numpy as np
 
+from sb3_trlsd.buffers import SharedDynamicsReplayBuffer
 from sb3_trlsd.data import Transitions
 from sb3_trlsd.engine import Engine, Run
 from sb3_trlsd.policies import LinearPolicy
@@ -28,7 +29,9 @@ __all__ = ["EnvBatch", "Lockstep", "LockstepRecord"]
 class EnvBatch(Protocol):
     """One env per run, stepped together. States are (R, d) arrays as the envs observe them (float32)."""
 
-    def reset(self, runs: Sequence[int], seeds: Sequence[int | None]) -> tuple[np.ndarray, np.ndarray]:
+    def reset(
+        self, runs: Sequence[int] | np.ndarray, seeds: Sequence[int | None]
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Reset the given runs' envs (seeded, or not with None): their states (m, d) and tasks (m,)."""
         ...
 
@@ -82,9 +85,11 @@ class Lockstep:
         self.model, self.envs, self.n_steps = model, envs, int(n_steps)
         self.state_dim = model.replay_buffer.obs_shape[0]
         n_source = 0 if source is None else len(source)
+        buffer_class = model.replay_buffer_class
+        assert buffer_class is not None and issubclass(buffer_class, SharedDynamicsReplayBuffer)
         buffers = []
         for _ in range(n_runs):
-            buffer = model.replay_buffer_class(
+            buffer = buffer_class(
                 n_source + max(self.n_steps, 1),
                 model.observation_space,
                 model.action_space,
@@ -101,7 +106,7 @@ class Lockstep:
             lambda run, task: model.new_task_learner(task, seed=self.seeds[run]),
             gamma=model.gamma,
             max_iterations=model.config.fqi_max_iterations,
-            tol=model.config.fqi_tol,
+            tol=model.config.fqi_tolerance,
             stop_rule=model.config.fqi_stop,
         )
 

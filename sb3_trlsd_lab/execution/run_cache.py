@@ -102,8 +102,9 @@ def fingerprinted_modules(module: str) -> set[str]:
     :return: module names
     """
     closure: set[str] = {module} if module.split(".")[0] in FINGERPRINTED_PACKAGES else set()
-    loaded = sys.modules.get(module)  # e.g. __main__ or a test module, which find_spec may not locate
-    pending = [Path(loaded.__file__) if getattr(loaded, "__file__", None) else module_file(module)]
+    # e.g. __main__ or a test module, which find_spec may not locate
+    loaded_file = getattr(sys.modules.get(module), "__file__", None)
+    pending = [Path(loaded_file) if loaded_file else module_file(module)]
     while pending:
         for name in imported_package_modules(pending.pop()) - closure:
             closure.add(name)
@@ -325,7 +326,7 @@ class RunCache:
         temporary_path = path.with_name(f".{path.name}.{os.getpid()}.tmp")
         try:
             with open(temporary_path, "wb") as file:
-                np.savez(file, **{RESULT_ENTRY: np.array(structure)}, **arrays)
+                np.savez(file, allow_pickle=False, **{RESULT_ENTRY: np.array(structure)}, **arrays)
                 file.flush()
                 os.fsync(file.fileno())
             os.replace(temporary_path, path)

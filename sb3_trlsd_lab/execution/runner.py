@@ -21,9 +21,11 @@ import gymnasium as gym
 import numpy as np
 
 from sb3_trlsd.data import collect_transitions
+from sb3_trlsd.observations import state_space_of
 from sb3_trlsd.trlsd import TRLSD
 from sb3_trlsd_envs import MAZE_ID, N_TASKS
 from sb3_trlsd_envs.dynamics import MAZE_SIZE
+from sb3_trlsd_envs.evaluation import task_family_of
 from sb3_trlsd_envs.pictures import greedy_policy_grid, state_grid
 from sb3_trlsd_lab.execution.protocols import AS_BUILT, Protocol
 
@@ -176,7 +178,7 @@ def run_online(
         for previous, step in itertools.pairwise([0, *snapshot_steps])
     }
     updates_before = sum(model.policy_updates.values())
-    states = np.empty((n_steps + 1, *env.observation_space["state"].shape))
+    states = np.empty((n_steps + 1, *state_space_of(env.observation_space).shape))
     tasks = np.empty(n_steps, dtype=np.int64)
     new_trajectory = np.zeros(n_steps + 1, dtype=bool)  # states[t] starts a trajectory after a reset
     snapshots = []
@@ -200,8 +202,9 @@ def run_online(
         trail = _broken_at_resets(states, new_trajectory, trail_starts[n_steps], n_steps + 1)
         snapshots.append(snapshot(model, int(tasks[0]), n_steps, trail))
     rewards = np.empty(n_steps)
+    family = task_family_of(env)
     for task in np.unique(tasks):
-        rewards[tasks == task] = env.unwrapped.expected_reward(states[:n_steps][tasks == task], int(task))
+        rewards[tasks == task] = family.expected_reward(states[:n_steps][tasks == task], int(task))
     return RunRecord(
         rewards=rewards,
         tasks=tasks,

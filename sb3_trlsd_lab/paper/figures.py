@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import textwrap
 import time
+import typing
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -13,7 +14,7 @@ import numpy as np
 from sb3_trlsd_envs import task_cell
 from sb3_trlsd_envs.dynamics import DEFAULT_WALLS
 from sb3_trlsd_lab.execution.protocols import Protocol, protocol_record
-from sb3_trlsd_lab.execution.runner import Method, RunRecord, Snapshot
+from sb3_trlsd_lab.execution.runner import RunRecord, Snapshot
 from sb3_trlsd_lab.paper.reporting import (
     mean_and_standard_error,
     plot_curves,
@@ -40,6 +41,13 @@ __all__ = [
 ]
 
 CURVE_SMOOTHING = 20  # transitions of the moving average drawn (the CSV keeps every transition)
+
+
+class Described(typing.Protocol):
+    """A method of a figure (a ``runner.Method``, a benchmark's ``Contender``): its settings, for the JSON."""
+
+    def parameters(self) -> dict[str, Any]:
+        """The settings that tell it from the other methods."""
 
 
 def new_figure(n_panels: int, width: float = 5.5, height: float = 4.2) -> tuple[Any, list[Any]]:
@@ -186,7 +194,7 @@ def write_transfer_figure(
     out: Path,
     name: str,
     title: str,
-    methods: Sequence[Method],
+    methods: Sequence[Described],
     records: Mapping[str, Sequence[RunRecord]],
     windows: Sequence[tuple[int, int]],
     parameters: Mapping[str, Any],

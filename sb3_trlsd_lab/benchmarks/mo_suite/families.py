@@ -204,7 +204,7 @@ def simplex_weights(n: int, k: int, seed: int) -> np.ndarray:
 @functools.cache
 def reward_dimension(family: Family) -> int:
     """k, the length of the env's reward vector."""
-    return int(np.prod(_mo_env(family).unwrapped.reward_space.shape))
+    return int(np.prod(_reward_space(_mo_env(family)).shape))
 
 
 def family_weights(family: Family) -> np.ndarray:
@@ -238,6 +238,23 @@ def _mo_env(family: Family) -> gym.Env:
     return mo_gymnasium.make(family.env_id, max_episode_steps=family.episode_steps)
 
 
+def _reward_space(env: gym.Env) -> spaces.Box:
+    """The space of an MO-Gymnasium env's reward vector."""
+    space = getattr(env.unwrapped, "reward_space", None)
+    if not isinstance(space, spaces.Box):
+        raise ValueError(
+            f"expected an MO-Gymnasium env with a Box reward_space, got {type(env.unwrapped).__name__}"
+        )
+    return space
+
+
+def scalarised_tasks(env: gym.Env) -> ScalarisedTasks:
+    """The ``ScalarisedTasks`` under ``env``'s wrappers (a ValueError for any other env)."""
+    if not isinstance(env.unwrapped, ScalarisedTasks):
+        raise ValueError(f"expected ScalarisedTasks under the wrappers, got {type(env.unwrapped).__name__}")
+    return env.unwrapped
+
+
 class ScalarisedTasks(gym.Env):
     """
     ## Description
@@ -269,17 +286,19 @@ class ScalarisedTasks(gym.Env):
 
     def __init__(self, env: gym.Env, weights: np.ndarray, task: int = 0) -> None:
         weights = np.asarray(weights, dtype=np.float64)
-        reward_space = env.unwrapped.reward_space
+        reward_space = _reward_space(env)
         if weights.ndim != 2 or weights.shape[1] != int(np.prod(reward_space.shape)):
             raise ValueError(
                 f"weights must be (n_tasks, {int(np.prod(reward_space.shape))}), got shape {weights.shape}"
             )
         if not isinstance(env.action_space, spaces.Discrete):
             raise ValueError(f"the env's actions must be Discrete, got {env.action_space}")
+        box = env.observation_space
+        if not isinstance(box, spaces.Box):
+            raise ValueError(f"the env's observations must be a Box, got {box}")
         self.env = env
         self.weights = weights
         self.reward_space = reward_space
-        box = env.observation_space
         self.observation_space = spaces.Dict(
             {
                 "state": spaces.Box(
@@ -288,7 +307,7 @@ class ScalarisedTasks(gym.Env):
                 "task": spaces.Discrete(len(weights)),
             }
         )
-        self.action_space = env.action_space
+        self.action_space: spaces.Discrete = env.action_space
         self.task = 0
         self.set_task(task)
 

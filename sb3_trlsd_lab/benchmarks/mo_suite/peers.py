@@ -37,6 +37,7 @@ from stable_baselines3 import DQN
 
 from sb3_trlsd import RelabellingReplayBuffer
 from sb3_trlsd.feature_maps import make_feature_map
+from sb3_trlsd.observations import check_action_space, state_space_of
 from sb3_trlsd.trlsd import TRLSD
 from sb3_trlsd_lab.benchmarks.baselines import DQN_SETTINGS, fill_replay_buffer, one_torch_thread
 from sb3_trlsd_lab.benchmarks.mo_suite.families import (
@@ -46,6 +47,7 @@ from sb3_trlsd_lab.benchmarks.mo_suite.families import (
     family_weights,
     make_env,
     reward_bound,
+    scalarised_tasks,
 )
 from sb3_trlsd_lab.benchmarks.mo_suite.sf_gpi import SuccessorFeaturesGPI
 
@@ -118,7 +120,7 @@ def _dqn(fill: Callable[[DQN, SourceSet, int], None] | None) -> Run:
     def run(
         env: StepRewards, family: Family, source: SourceSet | None, seed: int, n_online: int
     ) -> tuple[int, float]:
-        task = int(env.unwrapped.task)
+        task = scalarised_tasks(env).task
         settings = _relabelling_settings(family, task) if fill is _relabelled else {}
         with one_torch_thread():
             model = DQN("MultiInputPolicy", env, seed=seed, device="cpu", **{**DQN_SETTINGS, **settings})
@@ -161,7 +163,7 @@ def _sf_gpi(
     env: StepRewards, family: Family, source: SourceSet | None, seed: int, n_online: int
 ) -> tuple[int, float]:
     assert source is not None
-    space = env.observation_space["state"]
+    space = state_space_of(env.observation_space)
     low, high = family.state_bounds or (space.low, space.high)
     features = make_feature_map(
         "fourier",
@@ -170,7 +172,7 @@ def _sf_gpi(
         rbf_sigma=SF_FEATURE_WIDTH,
         fourier_features=min(SF_FEATURES_PER_DIM * len(low), SF_MAX_FEATURES),
         seed=seed,
-        n_actions=int(env.action_space.n),
+        n_actions=check_action_space(env.action_space),
     )
     data = source.transitions
     agent = SuccessorFeaturesGPI.from_source(
@@ -181,7 +183,7 @@ def _sf_gpi(
         data.next_states,
         data.terminations,
         family_weights(family)[family.tasks_of("source")],
-        n_actions=int(env.action_space.n),
+        n_actions=check_action_space(env.action_space),
         gamma=GAMMA,
         seed=seed,
     )
@@ -222,7 +224,7 @@ def _trlsd_reward_given(
     env: StepRewards, family: Family, source: SourceSet | None, seed: int, n_online: int
 ) -> tuple[int, float]:
     assert source is not None
-    task = int(env.unwrapped.task)
+    task = scalarised_tasks(env).task
     model = TRLSD("LinearPolicy", env, seed=seed, kappa=0.0, state_bounds=family.state_bounds)
     data = source.transitions
     true_rewards = source.vector_rewards @ family_weights(family)[task]

@@ -113,10 +113,10 @@ def lstd_successor_features(
             both = rows & (next_actions == b)
             if both.any():
                 system[a, :, b, :] -= features[both].T @ discounted[both]
-    system = system.reshape(n_actions * m, n_actions * m)
-    scale = max(float(np.mean(np.diag(system))), 1e-12)
-    system += ridge * scale * np.eye(n_actions * m)
-    theta = np.linalg.solve(system, target.reshape(n_actions * m, k))
+    matrix = system.reshape(n_actions * m, n_actions * m)
+    scale = max(float(np.mean(np.diag(matrix))), 1e-12)
+    matrix += ridge * scale * np.eye(n_actions * m)
+    theta = np.linalg.solve(matrix, target.reshape(n_actions * m, k))
     return theta.reshape(n_actions, m, k)
 
 

@@ -187,7 +187,7 @@ def run_suite(
     started = time.perf_counter()
     n_source = family.n_source if n_source is None else n_source
     n_online = family.n_online if n_online is None else n_online
-    jobs = [
+    jobs: list[tuple[tuple, dict[str, Any]]] = [
         ((family.name, method, run, seed, split, n_source, n_online), {})
         for method in methods
         for run in range(runs)
