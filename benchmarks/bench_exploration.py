@@ -23,10 +23,10 @@ import argparse
 
 import numpy as np
 
-from sb3_trlsd.experiments.batches import transfer_runs
-from sb3_trlsd.experiments.reporting import mean_and_standard_error
-from sb3_trlsd.experiments.runner import Method
 from sb3_trlsd_envs import N_TASKS
+from sb3_trlsd_lab.execution.batches import transfer_runs
+from sb3_trlsd_lab.execution.runner import Method
+from sb3_trlsd_lab.paper.reporting import mean_and_standard_error
 
 SETTINGS = {  # name -> keyword arguments of the target task's env
     "paper": {},

@@ -37,11 +37,11 @@ import numpy as np
 import torch as th
 
 from sb3_trlsd import TRLSD
-from sb3_trlsd.experiments.jobs import run_jobs
-from sb3_trlsd.experiments.runner import Method, RunRecord, transfer_run
 from sb3_trlsd.fit_rows import FitRows, TransitionRows
 from sb3_trlsd.fqi import FQIResult, return_bounds
 from sb3_trlsd.policies import MlpPolicy
+from sb3_trlsd_lab.execution.jobs import run_jobs
+from sb3_trlsd_lab.execution.runner import Method, RunRecord, transfer_run
 
 
 def gradient_only_fit_mlp_fqi(

@@ -29,14 +29,14 @@ import numpy as np
 from stable_baselines3 import DQN
 
 from sb3_trlsd import RelabellingReplayBuffer, Transitions, collect_transitions, dqn_q_values
-from sb3_trlsd.experiments.baselines import (
+from sb3_trlsd_envs.evaluation import greedy_expected_rewards
+from sb3_trlsd_envs.maze import N_TASKS
+from sb3_trlsd_lab.benchmarks.baselines import (
     DQN_SETTINGS,
     ExpectedRewards,
     fill_replay_buffer,
     one_torch_thread,
 )
-from sb3_trlsd_envs.evaluation import greedy_expected_rewards
-from sb3_trlsd_envs.maze import N_TASKS
 
 MAZE_ID = "TRLSD/SharedDynamicsMaze-v0"
 N_SOURCE = 25_000  # the paper's source set

@@ -21,9 +21,9 @@ import time
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from sb3_trlsd.experiments import multitask, transfer
-from sb3_trlsd.experiments.batches import multitask_batch, transfer_batch
-from sb3_trlsd.experiments.runner import Method, RunRecord, multitask_run, transfer_run
+from sb3_trlsd_lab.execution.batches import multitask_batch, transfer_batch
+from sb3_trlsd_lab.execution.runner import Method, RunRecord, multitask_run, transfer_run
+from sb3_trlsd_lab.paper import multitask, transfer
 
 
 def timed(function, *args, **kwargs) -> tuple[float, list[RunRecord]]:

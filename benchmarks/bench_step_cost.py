@@ -22,9 +22,9 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from sb3_trlsd import TRLSD, collect_transitions
-from sb3_trlsd.experiments.mo_suite.families import FAMILIES, available, collect_source, make_env
 from sb3_trlsd.fqi import FQIResult
 from sb3_trlsd_envs import MAZE_ID
+from sb3_trlsd_lab.benchmarks.mo_suite.families import FAMILIES, available, collect_source, make_env
 
 TARGET_MS = 5.0  # per online step, averaged over 1,000 steps after 25,000 source rows, on 2 cores
 

@@ -56,7 +56,7 @@ def write_now(logger: Logger, key: str, value: Any, step: int) -> None:
     """
     for output in logger.output_formats:
         if isinstance(output, TensorBoardOutputFormat):
-            output.write({key: value}, {key: None}, step=step)
+            output.write({key: value}, {key: ()}, step=step)
 
 
 def log_task_picture(logger: Logger, env: VecEnv | None, view: TaskView, step: int) -> None:

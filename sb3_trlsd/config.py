@@ -75,7 +75,7 @@ def _finite(name: str, value: object) -> float:
 
 
 def _integer(name: str, value: object, minimum: int, none_allowed: bool = False) -> None:
-    ok = isinstance(value, (int, np.integer)) and not isinstance(value, bool) and value >= minimum
+    ok = isinstance(value, (int, np.integer)) and not isinstance(value, bool) and bool(value >= minimum)
     meaning = f"an integer >= {minimum}" + (" or None" if none_allowed else "")
     _require(ok or (none_allowed and value is None), name, meaning, value)
 
@@ -251,6 +251,12 @@ class TRLSDConfig:
     def head_name(self) -> str:
         """The reward head's name, or its class name for a ``RewardHead`` instance."""
         return self.reward_head if isinstance(self.reward_head, str) else type(self.reward_head).__name__
+
+    @property
+    def fqi_tolerance(self) -> float:
+        """``fqi_tol`` as the fits take it: the rule's ``FQI_TOLS`` entry when it was given as None."""
+        assert self.fqi_tol is not None, "resolved when the settings are made"
+        return self.fqi_tol
 
     def hyperparameters(self) -> dict[str, int | float | str | bool]:
         """The settings as TensorBoard's HParams tab shows them (numbers, or their text)."""

@@ -33,6 +33,7 @@ import math
 from abc import ABC, abstractmethod
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Protocol
 
 import numpy as np
 
@@ -49,6 +50,7 @@ __all__ = [
     "PAPER_OVERLAP",
     "AdditiveRBF",
     "FeatureMap",
+    "Features",
     "RBFGrid",
     "RandomFourierFeatures",
     "check_feature_memory",
@@ -73,7 +75,9 @@ Widths = float | Sequence[float] | np.ndarray
 Counts = int | Sequence[int]
 
 
-def _box(low: Sequence[float], high: Sequence[float]) -> tuple[tuple[float, ...], tuple[float, ...]]:
+def _box(
+    low: Sequence[float] | np.ndarray, high: Sequence[float] | np.ndarray
+) -> tuple[tuple[float, ...], tuple[float, ...]]:
     low_t = tuple(float(v) for v in np.atleast_1d(low))
     high_t = tuple(float(v) for v in np.atleast_1d(high))
     if (
@@ -86,12 +90,12 @@ def _box(low: Sequence[float], high: Sequence[float]) -> tuple[tuple[float, ...]
 
 
 def _is_count(value: object) -> bool:
-    return isinstance(value, (int, np.integer)) and not isinstance(value, bool) and value >= 1
+    return isinstance(value, (int, np.integer)) and not isinstance(value, bool) and bool(value >= 1)
 
 
 def _counts(name: str, n_per_dim: Counts, dims: int) -> tuple[int, ...]:
     """Counts as one integer >= 1 per dimension (a single integer for all)."""
-    counts: tuple[object, ...] = ()
+    counts: tuple[int | np.integer, ...] = ()
     if isinstance(n_per_dim, (int, np.integer)):
         counts = (n_per_dim,) * dims
     elif isinstance(n_per_dim, (Sequence, np.ndarray)) and not isinstance(n_per_dim, str):
@@ -204,6 +208,20 @@ def default_kernel_width(dims: int) -> float:
     :return: 0.04 for d = 2 (exactly), 0.126 for d = 4, 0.185 for d = 6
     """
     return float(0.04 * (0.04 * np.sqrt(2.0 * np.pi)) ** (2.0 / dims - 1.0))
+
+
+class Features(Protocol):
+    """Phi, states (n, d) -> features (n, k), with its width k: what a linear Q is fitted on."""
+
+    @property
+    def n_features(self) -> int:
+        """k."""
+
+    def __call__(self, states: np.ndarray, /) -> np.ndarray:
+        """
+        :param states: (n, d)
+        :return: Phi(states), (n, n_features)
+        """
 
 
 class FeatureMap(ABC):
@@ -416,8 +434,8 @@ def check_feature_memory(n_features: int, n_actions: int, n_tasks: int, settings
 
 def make_feature_map(
     kind: str,
-    low: Sequence[float],
-    high: Sequence[float],
+    low: Sequence[float] | np.ndarray,
+    high: Sequence[float] | np.ndarray,
     *,
     rbf_per_dim: Counts | str | None = None,
     rbf_sigma: Widths | None = None,

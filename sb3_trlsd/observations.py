@@ -68,7 +68,9 @@ def task_count_of(observation_space: spaces.Space) -> int:
     """The number of tasks: the ``"task"`` Discrete's size, 1 for a plain Box observation."""
     state_space_of(observation_space)
     if isinstance(observation_space, spaces.Dict):
-        return int(observation_space["task"].n)
+        task_space = observation_space["task"]
+        assert isinstance(task_space, spaces.Discrete)  # state_space_of refuses any other
+        return int(task_space.n)
     return 1
 
 

@@ -10,7 +10,6 @@ policy holds Q-functions only: the transitions it is fitted on come as ``FitRows
 from __future__ import annotations
 
 from abc import abstractmethod
-from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -19,7 +18,7 @@ from gymnasium import spaces
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import PyTorchObs, Schedule
 
-from sb3_trlsd.feature_maps import FeatureMap
+from sb3_trlsd.feature_maps import Features
 from sb3_trlsd.fit_rows import FitRows, LinearFitRows, TransitionRows
 from sb3_trlsd.fqi import (
     DEFAULT_LINEAR_ITERATIONS,
@@ -144,13 +143,14 @@ class LinearPolicy(TaskQPolicy):
     """
 
     default_max_iterations = DEFAULT_LINEAR_ITERATIONS
+    theta: th.Tensor  # (n_tasks, n_actions, k) float64, a buffer: saved with the policy's state dict
 
     def __init__(
         self,
         observation_space: spaces.Space,
         action_space: spaces.Space,
         lr_schedule: Schedule,
-        features: FeatureMap | Callable[[np.ndarray], np.ndarray] | None = None,
+        features: Features | None = None,
         fqi_ridge: float = DEFAULT_RIDGE,
         fqi_dtype: str = "float32",
     ):
@@ -286,10 +286,16 @@ class MlpPolicy(TaskQPolicy):
     def _inputs(self, states: np.ndarray) -> np.ndarray:
         return (states - self.state_centre) / self.state_half_width
 
+    def q_network(self, task: int) -> th.nn.Sequential:
+        """The network of Q_task, inputs (n, d) -> (n, n_actions) (``make_q_network``'s)."""
+        network = self.q_networks[task]
+        assert isinstance(network, th.nn.Sequential)
+        return network
+
     def _task_q_values(self, states: np.ndarray, task: int) -> np.ndarray:
         inputs = th.as_tensor(self._inputs(states), dtype=th.float32, device=self.device)
         with th.no_grad():
-            return self.q_networks[task](inputs).cpu().numpy().astype(np.float64)
+            return self.q_network(task)(inputs).cpu().numpy().astype(np.float64)
 
     def new_fit_rows(self) -> TransitionRows:
         return TransitionRows(self._inputs, self.state_space.shape[0])
@@ -312,7 +318,7 @@ class MlpPolicy(TaskQPolicy):
             rewards,
             next_inputs,
             terminated,
-            network=self.q_networks[task],
+            network=self.q_network(task),
             gamma=gamma,
             optimizer=self.optimizer,
             max_iterations=max_iterations,

@@ -10,6 +10,7 @@ buffer's order, oldest first).
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 from typing import Protocol
 
@@ -151,25 +152,26 @@ class LinearRunsQFunctions:
             rows, restart = buffers[run].read_new(self._cursors[run])
             assert not restart, "a run of a batch keeps every row: its buffer never wraps around"
             self.own_rows[run].extend(rows)
-        settings = {"gamma": gamma, "max_iterations": max_iterations, "tol": tol, "stop_rule": stop_rule}
+        fit = functools.partial(
+            fit_linear_fqi_runs, gamma=gamma, max_iterations=max_iterations, tol=tol, stop_rule=stop_rule
+        )
         theta0 = [self.theta[run, task] for run, task in pairs]
         if self.shared_rows is not None:
             # The shared rows are every run's: one fit, its products over them shared by all pairs.
             shared, order = self.shared_rows.solver, self.shared_order
             reordered = [np.concatenate([r[: self.n_shared][order], r[self.n_shared :]]) for r in rewards]
             own = [self.own_rows[run].solver for run, _ in pairs]
-            results = fit_linear_fqi_runs(shared, own, reordered, theta0=theta0, **settings)
+            results = fit(shared, own, reordered, theta0=theta0)
         else:
             # Without shared rows, runs share no products: a fit per run, over its tasks due now.
             results_of: dict[int, FQIResult] = {}
             for run in sorted({run for run, _ in pairs}):
                 mine = [i for i, (other, _) in enumerate(pairs) if other == run]
-                fitted = fit_linear_fqi_runs(
+                fitted = fit(
                     self.own_rows[run].solver,
                     [None] * len(mine),
                     [rewards[i] for i in mine],
                     theta0=[theta0[i] for i in mine],
-                    **settings,
                 )
                 results_of.update(zip(mine, fitted, strict=True))
             results = [results_of[i] for i in range(len(pairs))]

@@ -266,10 +266,13 @@ class RelabellingReplayBuffer(SharedDynamicsReplayBuffer):
                 dones=self.to_torch(dones.reshape(-1, 1)),
                 rewards=rewards_column,
             )
+        observations_array = self._normalize_obs(states, env)
+        next_observations_array = self._normalize_obs(next_states, env)
+        assert isinstance(observations_array, np.ndarray) and isinstance(next_observations_array, np.ndarray)
         return ReplayBufferSamples(
-            observations=self.to_torch(self._normalize_obs(states, env)),
+            observations=self.to_torch(observations_array),
             actions=actions,
-            next_observations=self.to_torch(self._normalize_obs(next_states, env)),
+            next_observations=self.to_torch(next_observations_array),
             dones=self.to_torch(dones.reshape(-1, 1)),
             rewards=rewards_column,
         )

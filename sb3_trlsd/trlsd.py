@@ -11,7 +11,7 @@ import io
 import os
 import pathlib
 import warnings
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from typing import Any, ClassVar, TypeVar
 
 import gymnasium as gym
@@ -260,7 +260,9 @@ class TRLSD(OffPolicyAlgorithm):
         super().__init__(
             # Resolved here: SB3 would otherwise ask for "MultiInputPolicy" on Dict observations.
             policy=_policy_class(policy, self.policy_aliases),
-            env=env,
+            # None when ``load`` makes the model, as for SB3's own algorithms (OffPolicyAlgorithm's annotation
+            # leaves None out; BaseAlgorithm takes it)
+            env=env,  # type: ignore[arg-type]
             learning_rate=learning_rate,
             buffer_size=buffer_size,
             learning_starts=learning_starts,
@@ -334,7 +336,7 @@ class TRLSD(OffPolicyAlgorithm):
             lambda run, task: self.new_task_learner(task),
             gamma=self.gamma,
             max_iterations=self.config.fqi_max_iterations,
-            tol=self.config.fqi_tol,
+            tol=self.config.fqi_tolerance,
             stop_rule=self.config.fqi_stop,
             on_refit=self._log_refit,
         )
@@ -543,8 +545,8 @@ class TRLSD(OffPolicyAlgorithm):
     def save(
         self,
         path: str | pathlib.Path | io.BufferedIOBase,
-        exclude: list[str] | None = None,
-        include: list[str] | None = None,
+        exclude: Iterable[str] | None = None,
+        include: Iterable[str] | None = None,
     ) -> None:
         """SB3's ``save``, with the shared buffer's rows in the zip (so that ``load`` can go on learning)."""
         self._buffer_rows = th.as_tensor(self.replay_buffer.packed_rows())

@@ -12,9 +12,13 @@ from __future__ import annotations
 
 import sys
 from collections.abc import Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
+from unittest import mock
 
 from sb3_trlsd.trlsd import TRLSD
+
+if TYPE_CHECKING:
+    from rl_zoo3.exp_manager import ExperimentManager
 
 __all__ = [
     "ZOO_MISSING",
@@ -51,9 +55,9 @@ def sample_trlsd_params(trial: Any, n_actions: int, n_envs: int, additional_args
     )
 
 
-def convert_trlsd_params(params: dict[str, Any]) -> dict[str, Any]:
+def convert_trlsd_params(sampled_params: dict[str, Any]) -> dict[str, Any]:
     """A trial's parameters as ``TRLSD`` arguments (the Zoo's ``--trial-id`` reload): they already are."""
-    return dict(params)
+    return dict(sampled_params)
 
 
 def register_with_zoo() -> None:
@@ -69,7 +73,7 @@ def register_with_zoo() -> None:
     hyperparams_opt.HYPERPARAMS_CONVERTER["trlsd"] = convert_trlsd_params
 
 
-def evaluating_on_the_training_tasks(manager_class: type) -> type:
+def evaluating_on_the_training_tasks() -> type[ExperimentManager]:
     """
     A subclass of the Zoo's ``ExperimentManager`` whose evaluation env, without ``--eval-env-kwargs``, is
     made with the env kwargs of training, the config's included.
@@ -79,11 +83,11 @@ def evaluating_on_the_training_tasks(manager_class: type) -> type:
     env's default task (task 0 on the maze) while the model learnt the config's, and every ``-optimize``
     trial got the same score.
 
-    :param manager_class: ``rl_zoo3.exp_manager.ExperimentManager``
     :return: the subclass
     """
+    from rl_zoo3.exp_manager import ExperimentManager
 
-    class ExperimentManager(manager_class):
+    class TrainingTasksManager(ExperimentManager):
         def __init__(self, *args: Any, **kwargs: Any) -> None:
             super().__init__(*args, **kwargs)
             self.evaluate_on_training_kwargs = self.eval_env_kwargs is self.env_kwargs
@@ -93,7 +97,7 @@ def evaluating_on_the_training_tasks(manager_class: type) -> type:
                 self.eval_env_kwargs = self.env_kwargs
             return super().create_envs(n_envs, eval_env=eval_env, no_log=no_log)
 
-    return ExperimentManager
+    return TrainingTasksManager
 
 
 def run_zoo(script: str, argv: Sequence[str]) -> int:
@@ -134,9 +138,5 @@ def zoo_train() -> None:
     """The Zoo's ``train`` on ``sys.argv``, its ``ExperimentManager`` evaluating on the training tasks."""
     import rl_zoo3.train
 
-    manager_class = rl_zoo3.train.ExperimentManager
-    rl_zoo3.train.ExperimentManager = evaluating_on_the_training_tasks(manager_class)
-    try:
+    with mock.patch.object(rl_zoo3.train, "ExperimentManager", evaluating_on_the_training_tasks()):
         rl_zoo3.train.train()
-    finally:
-        rl_zoo3.train.ExperimentManager = manager_class

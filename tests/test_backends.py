@@ -23,11 +23,13 @@ from pathlib import Path
 
 import pytest
 
-from sb3_trlsd.cli import main
-from sb3_trlsd.experiments import backends, multitask, reproduce
-from sb3_trlsd.experiments.backends import Backend
-from sb3_trlsd.experiments.jobs import RunsInterrupted, run_jobs
-from sb3_trlsd.experiments.runner import multitask_run
+from sb3_trlsd_lab.cli import main
+from sb3_trlsd_lab.execution import backends
+from sb3_trlsd_lab.execution.backends import Backend
+from sb3_trlsd_lab.execution.jobs import RunsInterrupted, run_jobs
+from sb3_trlsd_lab.execution.runner import multitask_run
+from sb3_trlsd_lab.paper import multitask
+from sb3_trlsd_lab.registry import reproduce
 from tests.test_cli import (
     EPISODE_STEPS,
     RUNS,

@@ -10,10 +10,15 @@ from matplotlib.image import imread
 from stable_baselines3 import DQN
 
 from sb3_trlsd import collect_transitions
-from sb3_trlsd.cli import main
-from sb3_trlsd.experiments import benchmark as bench
-from sb3_trlsd.experiments.baselines import DQN_SETTINGS, ExpectedRewards, fill_replay_buffer, random_rewards
 from sb3_trlsd_envs import FOUR_ROOMS_ID, GOAL_CARTPOLE_ID, MAZE_ID
+from sb3_trlsd_lab.benchmarks import benchmark as bench
+from sb3_trlsd_lab.benchmarks.baselines import (
+    DQN_SETTINGS,
+    ExpectedRewards,
+    fill_replay_buffer,
+    random_rewards,
+)
+from sb3_trlsd_lab.cli import main
 
 N_SOURCE, N_ONLINE = 400, 150  # DQN_SETTINGS' learning_starts is 100: 50 gradient steps
 

@@ -1,5 +1,5 @@
 """
-``reproduce beyond`` (``sb3_trlsd.experiments.beyond``) at tiny sizes: tuning seeds disjoint from the
+``reproduce beyond`` (``sb3_trlsd_lab.studies.beyond``) at tiny sizes: tuning seeds disjoint from the
 evaluation's, the selection of the best tuning score, a JSON whose aggregates are those of the runs, the
 files, and the options refused.
 """
@@ -12,9 +12,15 @@ import pytest
 import scipy.stats
 from matplotlib.image import imread
 
-from sb3_trlsd.cli import main
-from sb3_trlsd.experiments import STUDIES, batches, beyond, reproduce
-from sb3_trlsd.experiments.beyond import (
+from sb3_trlsd_envs import CELL_NOISE_STDS
+from sb3_trlsd_lab.cli import main
+from sb3_trlsd_lab.execution import batches
+from sb3_trlsd_lab.execution.runner import Method
+from sb3_trlsd_lab.paper.reporting import mean_and_standard_error
+from sb3_trlsd_lab.paper.reproduction import Reproduction
+from sb3_trlsd_lab.registry import STUDIES, reproduce
+from sb3_trlsd_lab.studies import beyond
+from sb3_trlsd_lab.studies.beyond import (
     GRIDS,
     REFERENCE,
     TUNING_SEED_OFFSET,
@@ -23,12 +29,8 @@ from sb3_trlsd.experiments.beyond import (
     selection_window,
     tuning_seeds,
 )
-from sb3_trlsd.experiments.beyond_report import best_against_goal, verdict
-from sb3_trlsd.experiments.reporting import mean_and_standard_error
-from sb3_trlsd.experiments.reproduction import Reproduction
-from sb3_trlsd.experiments.runner import Method
-from sb3_trlsd.experiments.tuning import TUNING_BATCH_RUNS, tuning_source_sets
-from sb3_trlsd_envs import CELL_NOISE_STDS
+from sb3_trlsd_lab.studies.beyond_report import best_against_goal, verdict
+from sb3_trlsd_lab.studies.tuning import TUNING_BATCH_RUNS, tuning_source_sets
 from tests.conftest import record_figure_titles
 
 RUNS, TUNING_RUNS, MLP_RUNS, SEED = 4, 3, 1, 7
@@ -419,7 +421,7 @@ def test_beyond_is_not_part_of_all_and_its_help_says_what_it_does(capsys):
     help_text = capsys.readouterr().out
     assert "beyond" in help_text and "--tuning-runs" in help_text and "--mlp-runs" in help_text
     assert "stratified bootstrap" in help_text
-    from sb3_trlsd.experiments import FIGURES
+    from sb3_trlsd_lab.registry import FIGURES
 
     assert "beyond" not in FIGURES
 

@@ -6,8 +6,9 @@ import json
 
 import pytest
 
-from sb3_trlsd.cli import main
-from sb3_trlsd.experiments.claims import (
+from sb3_trlsd_lab.cli import main
+from sb3_trlsd_lab.execution.protocols import PRESETS
+from sb3_trlsd_lab.studies.claims import (
     CLAIMS,
     above,
     above_all,
@@ -20,7 +21,6 @@ from sb3_trlsd.experiments.claims import (
     solved_by,
     updates_near,
 )
-from sb3_trlsd.experiments.protocols import PRESETS
 
 
 def aggregate(mean: float, se: float) -> dict:

@@ -18,18 +18,18 @@ from pathlib import Path
 import pytest
 from matplotlib.image import imread
 
-from sb3_trlsd.cli import main
-from sb3_trlsd.cli_parser import IMAGE_EXTENSIONS
-from sb3_trlsd.experiments import multitask
+from sb3_trlsd_lab.cli import main
+from sb3_trlsd_lab.cli_parser import IMAGE_EXTENSIONS
+from sb3_trlsd_lab.paper import multitask
 
 TURNS, EPISODE_STEPS = 1, 8  # Figure 8 at these sizes: about 0.2 s per run
 RUNS = 4  # per method: 12 runs of Figure 8
 # ``sb3-trlsd`` with Figure 8 at the sizes above (set in the main process, where the jobs are made).
 TINY_SB3_TRLSD = f"""
 import sys
-from sb3_trlsd.experiments import multitask
+from sb3_trlsd_lab.paper import multitask
 multitask.TURNS, multitask.EPISODE_STEPS = {TURNS}, {EPISODE_STEPS}
-from sb3_trlsd.cli import main
+from sb3_trlsd_lab.cli import main
 sys.exit(main(sys.argv[1:]))
 """
 # A process holding a child process in ``stopped_by_signals``, whose clean-up after the first signal never
@@ -37,7 +37,7 @@ sys.exit(main(sys.argv[1:]))
 # ends them, so a second signal that waited for the clean-up, or left the child, cannot pass unseen.
 ENDLESS_CLEAN_UP = """
 import multiprocessing, signal
-from sb3_trlsd.cli import stopped_by_signals
+from sb3_trlsd_lab.cli import stopped_by_signals
 child = multiprocessing.get_context("fork").Process(target=signal.pause)
 child.start()
 with stopped_by_signals():
@@ -127,7 +127,7 @@ def test_an_error_while_writing_is_one_line_and_status_1(tmp_path, monkeypatch, 
     def disk_full(*args, **kwargs):
         raise OSError(28, "No space left on device", str(tmp_path / "fig8.csv"))
 
-    monkeypatch.setattr("sb3_trlsd.experiments.reproduce", disk_full)
+    monkeypatch.setattr("sb3_trlsd_lab.registry.reproduce", disk_full)
     assert main(["reproduce", "fig8", "--out", str(tmp_path)]) == 1
     assert_one_line_error(capsys, "No space left on device", "fig8.csv")
 

@@ -15,10 +15,10 @@ import numpy as np
 import pytest
 
 from sb3_trlsd import TRLSD, collect_transitions
-from sb3_trlsd.experiments.env_batches import env_batch
-from sb3_trlsd.experiments.lockstep import Lockstep
-from sb3_trlsd.experiments.runner import Method
 from sb3_trlsd_envs import FOUR_ROOMS_ID, MAZE_ID
+from sb3_trlsd_lab.execution.env_batches import env_batch
+from sb3_trlsd_lab.execution.lockstep import Lockstep
+from sb3_trlsd_lab.execution.runner import Method
 
 Refits = list[tuple[int, int]]
 

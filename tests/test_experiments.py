@@ -12,16 +12,18 @@ import pytest
 from matplotlib.image import imread
 
 from sb3_trlsd import collect_transitions
-from sb3_trlsd.cli import main
-from sb3_trlsd.experiments import FIGURES, batches, multitask, runner
-from sb3_trlsd.experiments.reporting import (
+from sb3_trlsd_envs import MAZE_ID, expected_reward
+from sb3_trlsd_lab.cli import main
+from sb3_trlsd_lab.execution import batches, runner
+from sb3_trlsd_lab.execution.runner import Method, multitask_run, transfer_run
+from sb3_trlsd_lab.paper import multitask
+from sb3_trlsd_lab.paper.reporting import (
     mean_and_standard_error,
     moving_average,
     results_table,
     window_means,
 )
-from sb3_trlsd.experiments.runner import Method, multitask_run, transfer_run
-from sb3_trlsd_envs import MAZE_ID, expected_reward
+from sb3_trlsd_lab.registry import FIGURES
 
 
 def test_a_transfer_run_records_the_rewards_of_the_states_learn_visits():

@@ -8,14 +8,14 @@ import numpy as np
 import pytest
 
 from sb3_trlsd import TRLSD
-from sb3_trlsd.experiments.batches import batch_runs, multitask_batch, source_seed
-from sb3_trlsd.experiments.env_batches import GymEnvBatch, MazeBatch, env_batch
-from sb3_trlsd.experiments.lockstep import Lockstep
-from sb3_trlsd.experiments.reporting import mean_and_standard_error, window_means
-from sb3_trlsd.experiments.runner import Method, multitask_run
 from sb3_trlsd.fqi import LinearFQISolver, fit_linear_fqi_runs
 from sb3_trlsd_envs import CELL_NOISE_STDS, FOUR_ROOMS_ID, MAZE_ID
 from sb3_trlsd_envs.maze_runs import step_mazes
+from sb3_trlsd_lab.execution.batches import batch_runs, multitask_batch, source_seed
+from sb3_trlsd_lab.execution.env_batches import GymEnvBatch, MazeBatch, env_batch
+from sb3_trlsd_lab.execution.lockstep import Lockstep
+from sb3_trlsd_lab.execution.runner import Method, multitask_run
+from sb3_trlsd_lab.paper.reporting import mean_and_standard_error, window_means
 
 K, N_ACTIONS, GAMMA = 6, 3, 0.8
 

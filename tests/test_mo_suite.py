@@ -9,8 +9,7 @@ import pytest
 
 pytest.importorskip("mo_gymnasium")
 
-from sb3_trlsd.cli import main
-from sb3_trlsd.experiments.mo_suite.families import (
+from sb3_trlsd_lab.benchmarks.mo_suite.families import (
     FAMILIES,
     available,
     collect_source,
@@ -19,8 +18,9 @@ from sb3_trlsd.experiments.mo_suite.families import (
     reward_bound,
     weight_split,
 )
-from sb3_trlsd.experiments.mo_suite.peers import METHODS, run_method
-from sb3_trlsd.experiments.mo_suite.suite import goal_table, paired_gain, run_suite
+from sb3_trlsd_lab.benchmarks.mo_suite.peers import METHODS, run_method
+from sb3_trlsd_lab.benchmarks.mo_suite.suite import goal_table, paired_gain, run_suite
+from sb3_trlsd_lab.cli import main
 
 GRID_FAMILIES = ["deep-sea-treasure-v0", "resource-gathering-v0", "four-room-v0"]
 

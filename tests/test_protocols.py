@@ -1,5 +1,5 @@
 """
-The protocols of ``reproduce`` (``sb3_trlsd.experiments.protocols``): each preset's choices reach the envs,
+The protocols of ``reproduce`` (``sb3_trlsd_lab.execution.protocols``): each preset's choices reach the envs,
 reward heads, task learners and Fitted-Q fits of the runs a figure makes, batched and alone, on tiny sizes;
 the JSON records the protocol, the run cache keeps protocols apart, and today's protocol is the default.
 """
@@ -13,13 +13,14 @@ import numpy as np
 import pytest
 
 from sb3_trlsd import TRLSD, RidgeRewardHead, TabularRewardHead
-from sb3_trlsd.cli import main
-from sb3_trlsd.experiments import batches, multitask, reproduce, runner
-from sb3_trlsd.experiments.batches import multitask_batch, run_source_seed, source_seed, transfer_batch
-from sb3_trlsd.experiments.env_batches import env_batch
-from sb3_trlsd.experiments.figures import protocol_title
-from sb3_trlsd.experiments.lockstep import Lockstep
-from sb3_trlsd.experiments.protocols import (
+from sb3_trlsd.reward_heads import DEFAULT_W_FLOOR
+from sb3_trlsd_envs import MAZE_ID, SharedDynamicsMaze
+from sb3_trlsd_lab.cli import main
+from sb3_trlsd_lab.execution import batches, runner
+from sb3_trlsd_lab.execution.batches import multitask_batch, run_source_seed, source_seed, transfer_batch
+from sb3_trlsd_lab.execution.env_batches import env_batch
+from sb3_trlsd_lab.execution.lockstep import Lockstep
+from sb3_trlsd_lab.execution.protocols import (
     AS_BUILT,
     AS_BUILT_NAME,
     DEFAULT_PROTOCOL,
@@ -28,10 +29,11 @@ from sb3_trlsd.experiments.protocols import (
     protocol_named,
     protocol_record,
 )
-from sb3_trlsd.experiments.run_cache import run_key
-from sb3_trlsd.experiments.runner import Method, multitask_env, run_online, transfer_run
-from sb3_trlsd.reward_heads import DEFAULT_W_FLOOR
-from sb3_trlsd_envs import MAZE_ID, SharedDynamicsMaze
+from sb3_trlsd_lab.execution.run_cache import run_key
+from sb3_trlsd_lab.execution.runner import Method, multitask_env, run_online, transfer_run
+from sb3_trlsd_lab.paper import multitask
+from sb3_trlsd_lab.paper.figures import protocol_title
+from sb3_trlsd_lab.registry import reproduce
 
 CONTINUOUS, DISCRETE = Method("continuous"), Method("discrete", reward_head="tabular")
 TASKS, SEEDS = (3, 12, 21), (40, 41, 42)

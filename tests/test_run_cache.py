@@ -13,10 +13,10 @@ from typing import Any
 import numpy as np
 import pytest
 
-from sb3_trlsd.experiments import run_cache
-from sb3_trlsd.experiments.jobs import run_jobs
-from sb3_trlsd.experiments.run_cache import RunCache, run_key
-from sb3_trlsd.experiments.runner import Method, RunRecord, Snapshot, multitask_run, transfer_run
+from sb3_trlsd_lab.execution import run_cache
+from sb3_trlsd_lab.execution.jobs import run_jobs
+from sb3_trlsd_lab.execution.run_cache import RunCache, run_key
+from sb3_trlsd_lab.execution.runner import Method, RunRecord, Snapshot, multitask_run, transfer_run
 
 CALL_LOG_VARIABLE = "SB3_TRLSD_TEST_CALL_LOG"  # file where counted_transfer_run writes the seed of each call
 
@@ -87,7 +87,7 @@ def test_run_jobs_misses_the_cache_when_an_argument_or_the_code_changes(tmp_path
 
 def test_fingerprint_covers_the_code_a_run_imports_and_not_the_reporting():
     """Editing the algorithm must invalidate the runs; redrawing a figure or the command line must not."""
-    modules = run_cache.fingerprinted_modules("sb3_trlsd.experiments.runner")
+    modules = run_cache.fingerprinted_modules("sb3_trlsd_lab.execution.runner")
     for executed in (
         "sb3_trlsd.trlsd",
         "sb3_trlsd.fqi",
@@ -97,8 +97,8 @@ def test_fingerprint_covers_the_code_a_run_imports_and_not_the_reporting():
     ):
         assert executed in modules
     for not_run in ("reporting", "figures", "multitask", "transfer"):
-        assert f"sb3_trlsd.experiments.{not_run}" not in modules
-    assert "sb3_trlsd.cli" not in modules
+        assert f"sb3_trlsd_lab.paper.{not_run}" not in modules
+    assert "sb3_trlsd_lab.cli" not in modules
 
 
 def test_fingerprint_changes_with_an_imported_module_only(tmp_path, monkeypatch):
@@ -226,7 +226,7 @@ DAMAGES = {
         path, {"format": 1, "result": {"dataclass": ["subprocess:CompletedProcess", {}]}}
     ),
     "fields changed": lambda path: write_result_entry(
-        path, {"format": 1, "result": {"dataclass": ["sb3_trlsd.experiments.runner:RunRecord", {}]}}
+        path, {"format": 1, "result": {"dataclass": ["sb3_trlsd_lab.execution.runner:RunRecord", {}]}}
     ),
 }
 

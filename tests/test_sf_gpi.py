@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sb3_trlsd.experiments.mo_suite.sf_gpi import (
+from sb3_trlsd_lab.benchmarks.mo_suite.sf_gpi import (
     SuccessorFeaturesGPI,
     gpi_q_values,
     lstd_successor_features,

@@ -1,5 +1,5 @@
 """
-The aggregates of ``sb3_trlsd.experiments.statistics`` and the intervals of ``bootstrap`` against rliable's
+The aggregates of ``sb3_trlsd_lab.stats.statistics`` and the intervals of ``bootstrap`` against rliable's
 definitions: closed forms and hand counts, the coverage of the stratified bootstrap, and the tables and
 figure built on them.
 """
@@ -9,17 +9,17 @@ import pytest
 import scipy.stats
 from matplotlib.image import imread
 
-from sb3_trlsd.experiments import bootstrap
-from sb3_trlsd.experiments.bootstrap import (
+from sb3_trlsd_lab.paper.figures import write_improvement_figure
+from sb3_trlsd_lab.paper.reporting import intervals_table, window_intervals, window_means
+from sb3_trlsd_lab.stats import bootstrap
+from sb3_trlsd_lab.stats.bootstrap import (
     aggregate_intervals,
     independent_bootstrap_ci,
     interval_cell,
     probability_of_improvement_ci,
     stratified_bootstrap_ci,
 )
-from sb3_trlsd.experiments.figures import write_improvement_figure
-from sb3_trlsd.experiments.reporting import intervals_table, window_intervals, window_means
-from sb3_trlsd.experiments.statistics import (
+from sb3_trlsd_lab.stats.statistics import (
     aggregate_mean,
     aggregate_median,
     interquartile_mean,

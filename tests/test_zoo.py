@@ -8,8 +8,8 @@ import yaml
 from tensorboard.backend.event_processing.event_file_loader import EventFileLoader
 
 from sb3_trlsd import TRLSD
-from sb3_trlsd.cli import main
 from sb3_trlsd_envs import MAZE_ID
+from sb3_trlsd_lab.cli import main
 from tests.test_cli import assert_one_line_error
 
 optuna = pytest.importorskip("optuna")

@@ -145,9 +145,11 @@ class LinearFQISolver:
 
     def inverse(self, action: int) -> np.ndarray:
         """(X_a^T X_a + ridge I)^-1 for an action, (k, k) float64, factored once until the action grows."""
-        if self._inverse[action] is None:
-            self._inverse[action] = cho_solve(cho_factor(self._gram[action]), np.eye(self.n_features))
-        return self._inverse[action]
+        inverse = self._inverse[action]
+        if inverse is None:
+            inverse = cho_solve(cho_factor(self._gram[action]), np.eye(self.n_features))
+            self._inverse[action] = inverse
+        return inverse
 
     def action_blocks(self) -> list[ActionBlock]:
         """

@@ -1,6 +1,6 @@
 """Linear Fitted-Q Iteration of several runs at once (eq. 3-4): the iterations of ``LinearFQISolver.fit``.
 
-Runs of a batch in lockstep (``sb3_trlsd.lockstep``) that share their source transitions share their rows:
+Runs of one ``Engine`` (``sb3_trlsd.engine``) that share their source transitions share their rows:
 the products of eq. 4 over them are one matrix-matrix product for every run still iterating. A fit of one
 run (``LinearFQISolver.fit``, and so ``TRLSD``) is this with a batch of one.
 """
@@ -218,6 +218,7 @@ class _BatchedFit:
         if own_y.shape[1]:
             # X_a^T y_a over the own rows of action a, every action and run in one batched product.
             moments += np.matmul(self.own.action_mask * own_y[:, None, :], self.own.phi_t.transpose(0, 2, 1))
+        assert self.inverses is not None, "a fit with active runs holds their inverses"
         new = np.einsum("rakj,raj->rak", self.inverses, moments)
         return np.where(self.has_rows, new, theta)
 
@@ -360,9 +361,9 @@ def fit_linear_fqi_runs(
         FQIResult(theta=run.theta0, iterations=0, bellman_residual=0.0) if not run.n_rows else None
         for run in runs
     ]
-    theta = np.stack([runs[r].theta0 for r in fit.active]) if len(fit.active) else None
     capped = False
-    if theta is not None:
+    if len(fit.active):
+        theta = np.stack([runs[r].theta0 for r in fit.active])
         shared_y, own_y = fit.targets(theta)
         for iteration in range(1, max_iterations + 1):
             new_theta = fit.projected(theta, shared_y, own_y)
@@ -389,5 +390,6 @@ def fit_linear_fqi_runs(
                 fit.drop(done)
     if capped:
         warn_at_cap(stop_rule)
-    assert all(result is not None for result in results)
-    return results  # type: ignore[return-value]
+    fitted = [result for result in results if result is not None]
+    assert len(fitted) == len(results), "every run has its result"
+    return fitted

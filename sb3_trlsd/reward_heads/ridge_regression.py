@@ -45,7 +45,7 @@ class RidgeRegression:
     @property
     def weights(self) -> np.ndarray | None:
         """The ridge solution w = A^-1 Phi^T r, (k,), or None before the first sample."""
-        if self._weights is None and self._gram is not None:
+        if self._weights is None and self._gram is not None and self._moments is not None:
             self._weights = np.linalg.solve(self._gram, self._moments)
         return self._weights
 

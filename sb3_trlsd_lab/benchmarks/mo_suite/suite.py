@@ -1,0 +1,301 @@
+"""
+The suite's runs and report: ``runs`` runs of each method on a family's held-out evaluation weights, spread
+over processes by ``run_jobs``, aggregated as mean ± standard error and a 95% stratified bootstrap interval
+of the mean, and written as ``mo_suite_<family>.csv`` (one row per run), ``.json`` (the aggregates, sizes,
+weights and timings) and ``.png`` (a bar per method with its interval).
+
+Run r targets evaluation weight r (modulo their number) with seed ``seed + r``; its source transitions
+(a random policy under the source weights) are collected with seed ``SOURCE_SEED + seed + r``, the same
+for every method. A run's score is the mean scalar reward w . r_vec per online step.
+"""
+
+from __future__ import annotations
+
+import csv
+import time
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from sb3_trlsd_lab.benchmarks.mo_suite.families import Family, collect_source, family_named
+from sb3_trlsd_lab.benchmarks.mo_suite.peers import METHODS, PeerResult, run_method
+from sb3_trlsd_lab.execution.jobs import run_jobs
+from sb3_trlsd_lab.paper.figures import new_figure, save_figure
+from sb3_trlsd_lab.paper.reporting import mean_and_standard_error, summary, write_json
+from sb3_trlsd_lab.stats.bootstrap import stratified_bootstrap_ci
+from sb3_trlsd_lab.stats.statistics import aggregate_mean
+
+__all__ = ["DEFAULT_RUNS", "SOURCE_SEED", "goal_table", "run_suite", "suite_run", "suite_table"]
+
+DEFAULT_RUNS = 20
+SOURCE_SEED = 10_000
+REFERENCE = "trlsd-reward-given"  # the level TRLSD is measured against, above the random policy's
+
+
+def suite_run(
+    family_name: str,
+    method: str,
+    run: int,
+    seed: int,
+    split: str,
+    n_source: int,
+    n_online: int,
+    settings: Mapping[str, Any] | None = None,
+) -> dict[str, Any]:
+    """
+    Run ``run`` of ``method`` on a family (a module-level function of its arguments alone, for the workers
+    and the run cache).
+
+    :param family_name: a key of ``FAMILIES``
+    :param method: a key of ``METHODS``
+    :param run: the run's index: its target weight and seed
+    :param seed: the suite's seed
+    :param split: the weights targeted, ``"evaluation"`` (or ``"tuning"``)
+    :param n_source: random source transitions
+    :param n_online: online transitions
+    :param settings: ``method="trlsd"`` only: TRLSD's keyword arguments other than its defaults (a candidate
+        of the tuning protocol)
+    :return: the run's row: task, score, seconds, online ms per step, updates and reward curve
+    """
+    family = family_named(family_name)
+    targets = family.tasks_of(split)
+    task = int(targets[run % len(targets)])
+    run_seed = seed + run
+    source = None
+    if METHODS[method][1]:
+        source = collect_source(family, n_source, SOURCE_SEED + run_seed)
+    result: PeerResult = run_method(method, family, task, run_seed, source, n_online, settings)
+    return {
+        "run": run,
+        "task": task,
+        "seed": run_seed,
+        "score": float(result.rewards.mean()),
+        "seconds": result.seconds,
+        "online_ms_per_step": 1000.0 * result.online_seconds / n_online,
+        "updates": result.updates,
+        "rewards": result.rewards.tolist(),
+    }
+
+
+def aggregate(rows: Sequence[Mapping[str, Any]], seed: int = 0) -> dict[str, Any]:
+    """
+    A method's runs on one family: mean ± standard error of the scores, the 95% bootstrap interval of their
+    mean (runs resampled as one stratum: the target weights are a random draw too), seconds per run and ms
+    per online step.
+
+    :param rows: the runs' rows (``suite_run``)
+    :param seed: seed of the resamples
+    """
+    scores = np.array([row["score"] for row in rows])
+    mean, se = mean_and_standard_error(scores)
+    _, low, high = stratified_bootstrap_ci(scores, aggregate_mean, seed=seed)
+    return {
+        "score": {"mean": float(mean), "se": float(se)},
+        "ci95": [low, high],
+        "seconds_per_run": float(np.mean([row["seconds"] for row in rows])),
+        "online_ms_per_step": float(np.mean([row["online_ms_per_step"] for row in rows])),
+        "updates": float(np.mean([row["updates"] for row in rows])),
+        "runs": len(rows),
+    }
+
+
+def paired_gain(rows: Sequence[Mapping[str, Any]], floor: Sequence[Mapping[str, Any]]) -> dict[str, float]:
+    """
+    Mean ± standard error of a method's score minus another's (the random policy's, or DQN's) on the same
+    run (the same target weight and seed): the scale of the rewards changes with the weights, and the
+    pairing removes it.
+    """
+    gains = np.array([row["score"] - other["score"] for row, other in zip(rows, floor, strict=True)])
+    mean, se = mean_and_standard_error(gains)
+    return {"mean": float(mean), "se": float(se)}
+
+
+def reference_fraction(results: Mapping[str, Mapping[str, Any]]) -> float | None:
+    """
+    (TRLSD - random) / (reward given - random): how much of the reward-given level's gain over a random
+    policy TRLSD reaches (None without the three methods, or no gain to share).
+    """
+    if not {"trlsd", REFERENCE, "random"} <= set(results):
+        return None
+    floor = results["random"]["score"]["mean"]
+    gain = results[REFERENCE]["score"]["mean"] - floor
+    if gain <= 0:
+        return None
+    return (results["trlsd"]["score"]["mean"] - floor) / gain
+
+
+def write_rows(path: Path, rows: Mapping[str, Sequence[Mapping[str, Any]]]) -> None:
+    """One CSV row per run: method, run, task, seed, score, seconds, online ms per step, updates."""
+    columns = ["run", "task", "seed", "score", "seconds", "online_ms_per_step", "updates"]
+    with open(path, "w", newline="") as file:
+        writer = csv.writer(file)
+        writer.writerow(["method", *columns])
+        for method, runs in rows.items():
+            for row in runs:
+                writer.writerow([method, *(row[column] for column in columns)])
+
+
+def plot_bars(path: Path, title: str, results: Mapping[str, Mapping[str, Any]]) -> None:
+    """A bar per method: its mean score, with its 95% bootstrap interval."""
+    figure, (ax,) = new_figure(1, width=7.0, height=1.4 + 0.45 * len(results))
+    labels = [METHODS[method][0] for method in results]
+    means = np.array([entry["score"]["mean"] for entry in results.values()])
+    intervals = np.array([entry["ci95"] for entry in results.values()])
+    positions = np.arange(len(results))[::-1]
+    ax.barh(positions, means, color=[f"C{i}" for i in range(len(results))], alpha=0.8)
+    ax.errorbar(
+        means,
+        positions,
+        xerr=np.abs(intervals.T - means),
+        fmt="none",
+        ecolor="black",
+        capsize=3,
+    )
+    ax.set_yticks(positions, labels)
+    ax.axvline(0.0, color="grey", linewidth=0.5)
+    ax.set_xlabel("mean scalar reward per online step (95% bootstrap interval)")
+    save_figure(figure, path, title)
+
+
+def run_suite(
+    family_name: str,
+    out: Path,
+    runs: int = DEFAULT_RUNS,
+    seed: int = 0,
+    workers: int = 1,
+    methods: Sequence[str] | None = None,
+    cache: Path | None = None,
+    split: str = "evaluation",
+    n_source: int | None = None,
+    n_online: int | None = None,
+) -> dict[str, Any]:
+    """
+    ``runs`` runs of each method on a family; write ``mo_suite_<family>.csv``, ``.json`` and ``.png``.
+
+    :param family_name: a key of ``FAMILIES``
+    :param out: output directory (created if needed)
+    :param runs: runs per method
+    :param seed: seed of the first run
+    :param workers: processes
+    :param methods: keys of ``METHODS`` (None: all)
+    :param cache: directory of finished runs, reused and completed (None: none)
+    :param split: the target weights, ``"evaluation"`` or ``"tuning"``
+    :param n_source: source transitions (None: the family's)
+    :param n_online: online transitions (None: the family's)
+    :return: the JSON summary
+    """
+    family: Family = family_named(family_name)
+    methods = list(METHODS) if methods is None else list(methods)
+    unknown = sorted(set(methods) - set(METHODS))
+    if unknown:
+        raise ValueError(f"methods must be among {', '.join(METHODS)}, got {unknown}")
+    if runs < 1:
+        raise ValueError(f"runs must be >= 1, got {runs}")
+    family.tasks_of(split)  # refused before anything runs
+    started = time.perf_counter()
+    n_source = family.n_source if n_source is None else n_source
+    n_online = family.n_online if n_online is None else n_online
+    jobs: list[tuple[tuple, dict[str, Any]]] = [
+        ((family.name, method, run, seed, split, n_source, n_online), {})
+        for method in methods
+        for run in range(runs)
+    ]
+    rows = run_jobs(
+        suite_run,
+        jobs,
+        workers,
+        description=f"{family.name}: {len(methods)} methods x {runs} runs",
+        cache=cache,
+    )
+    by_method = {method: rows[i * runs : (i + 1) * runs] for i, method in enumerate(methods)}
+    results = {method: aggregate(method_rows, seed) for method, method_rows in by_method.items()}
+    if "random" in by_method:
+        for method, entry in results.items():
+            entry["gain_over_random"] = paired_gain(by_method[method], by_method["random"])
+    out.mkdir(parents=True, exist_ok=True)
+    name = f"mo_suite_{family.name}"
+    write_rows(out / f"{name}.csv", by_method)
+    title = (
+        f"{family.env_id}: {n_source:,} random source transitions, {n_online:,} online steps, "
+        f"{runs} runs on held-out weights ({split})"
+    )
+    plot_bars(out / f"{name}.png", title, results)
+    data = summary(
+        name,
+        {
+            "family": family.name,
+            **family.parameters(),
+            "source_transitions": n_source,
+            "online_transitions": n_online,
+            "runs": runs,
+            "split": split,
+            "score": "mean scalar reward w . r_vec per online step",
+            "methods": {method: METHODS[method][0] for method in methods},
+        },
+        seed,
+        time.perf_counter() - started,
+        results=results,
+        trlsd_fraction_of_reward_given=reference_fraction(results),
+        trlsd_minus_dqn=paired_gain(by_method["trlsd"], by_method["dqn"])
+        if {"trlsd", "dqn"} <= set(by_method)
+        else None,
+    )
+    write_json(out / f"{name}.json", data)
+    return data
+
+
+def suite_table(datas: Sequence[Mapping[str, Any]]) -> str:
+    """
+    The Markdown table of the suite's summaries: one row per family and method, mean ± standard error,
+    bootstrap interval, gain over the random policy on the same runs, seconds per run and ms per online step.
+    """
+    lines = [
+        "| family | method | score (mean ± SE) | 95% bootstrap | gain over random (paired) | s/run | ms/step "
+        "| runs |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for data in datas:
+        family = data["parameters"]["family"]
+        for method, entry in data["results"].items():
+            low, high = entry["ci95"]
+            gain = entry.get("gain_over_random")
+            gain_cell = "" if gain is None else f"{gain['mean']:+.3f} ± {gain['se']:.3f}"
+            lines.append(
+                f"| {family} | {data['parameters']['methods'][method]} | {entry['score']['mean']:.3f} ± "
+                f"{entry['score']['se']:.3f} | [{low:.3f}, {high:.3f}] | {gain_cell} | "
+                f"{entry['seconds_per_run']:.1f} | "
+                f"{entry['online_ms_per_step']:.2f} | {entry['runs']} |"
+            )
+    return "\n".join(lines)
+
+
+def goal_table(datas: Sequence[Mapping[str, Any]]) -> str:
+    """
+    The Markdown table of TRLSD against its goals, one row per family: its gain over random (paired), its
+    score minus DQN's (paired) in standard errors, and its fraction of the reward-given level's gain over
+    random; each with whether it holds (above random by 2 SE, ahead of DQN by 2 SE, at least 70%).
+    """
+    lines = [
+        "| family | TRLSD gain over random | above random | TRLSD - DQN | ahead of DQN by 2 SE "
+        "| fraction of reward-given | >= 70% |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for data in datas:
+        gain = data["results"].get("trlsd", {}).get("gain_over_random")
+        versus, fraction = data.get("trlsd_minus_dqn"), data.get("trlsd_fraction_of_reward_given")
+        if gain is None or versus is None:
+            continue
+        lines.append(
+            f"| {data['parameters']['family']} | {gain['mean']:+.3f} ± {gain['se']:.3f} | "
+            f"{_yes(gain['mean'] > 2 * gain['se'])} | {versus['mean']:+.3f} ± {versus['se']:.3f} | "
+            f"{_yes(versus['mean'] > 2 * versus['se'])} | "
+            f"{'n/a' if fraction is None else f'{fraction:.0%}'} | "
+            f"{'n/a' if fraction is None else _yes(fraction >= 0.7)} |"
+        )
+    return "\n".join(lines)
+
+
+def _yes(holds: bool) -> str:
+    return "yes" if holds else "**no**"
