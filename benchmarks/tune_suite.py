@@ -20,9 +20,9 @@ from typing import Any
 
 import numpy as np
 
-from sb3_trlsd_lab.execution.jobs import run_jobs
 from sb3_trlsd_lab.benchmarks.mo_suite.families import FAMILIES, available
 from sb3_trlsd_lab.benchmarks.mo_suite.suite import suite_run
+from sb3_trlsd_lab.execution.jobs import run_jobs
 
 # Each candidate: TRLSD's settings other than its defaults ({}: the defaults as they are).
 CANDIDATES: dict[str, dict[str, Any]] = {
