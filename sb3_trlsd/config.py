@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 from gymnasium import spaces
 
+from sb3_trlsd.engine import TIE_BREAKS
 from sb3_trlsd.feature_maps import (
     FEATURE_MAPS,
     GRID_SHAPES,
@@ -130,6 +131,8 @@ class TRLSDConfig:
     :param first_fit: when a task's Q is first fitted, one of ``FIRST_FIT_RULES``
     :param refit_growth: once the trigger has fired, a task's refit waits until its samples have grown by this
         fraction since its last refit (>= 0; 0: at once, the paper)
+    :param tie_break: the greedy action among equal Q-values while learning, one of ``TIE_BREAKS``:
+        ``"random"`` (seeded by the run's seed) or ``"first"``
     :param fqi_max_iterations: cap on Fitted-Q iterations per refit (None: the Q-function's own default)
     :param fqi_tol: Fitted-Q's relative stopping tolerance (see ``fqi_stop``; None: ``FQI_TOLS`` of the rule)
     :param fqi_stop: Fitted-Q's stopping rule, one of ``STOP_RULES``: ``"targets"`` (the Bellman targets move
@@ -158,6 +161,7 @@ class TRLSDConfig:
     update_ratio: float = 2.0
     first_fit: str = "first_step"
     refit_growth: float = 0.1
+    tie_break: str = "random"
     fqi_max_iterations: int | None = None
     fqi_tol: float | None = None
     fqi_stop: str = "targets"
@@ -201,6 +205,8 @@ class TRLSDConfig:
             ">= 0 (a fraction of the task's samples; 0 refits as soon as the trigger fires)",
             self.refit_growth,
         )
+        if self.tie_break not in TIE_BREAKS:
+            raise ValueError(f"tie_break must be one of {list(TIE_BREAKS)}, got {self.tie_break!r}")
         if self.fqi_stop not in STOP_RULES:
             raise ValueError(f"fqi_stop must be one of {list(STOP_RULES)}, got {self.fqi_stop!r}")
         if self.fqi_tol is None:
@@ -268,6 +274,7 @@ class TRLSDConfig:
             "update_ratio": self.update_ratio,
             "first_fit": self.first_fit,
             "refit_growth": self.refit_growth,
+            "tie_break": self.tie_break,
             "fqi_max_iterations": self.fqi_max_iterations,
             "fqi_tol": self.fqi_tol,
             "fqi_stop": self.fqi_stop,

@@ -30,12 +30,52 @@ from sb3_trlsd.fqi import FQIResult, targets_rule_cap
 from sb3_trlsd.q_functions import QFunctions
 from sb3_trlsd.task_learner import TaskLearner
 
-__all__ = ["Engine", "NewLearner", "RefitHook", "Run"]
+__all__ = ["TIE_BREAKS", "Engine", "NewLearner", "RefitHook", "Run", "greedy_actions", "tie_rng"]
+
+# How the greedy action of equal Q-values is taken while learning: the first such action, or one of them at
+# random (a Q that is 0 everywhere, before any reward was seen with kappa = 0, then acts at random instead of
+# repeating action 0).
+TIE_BREAKS = ("random", "first")
 
 # (run, task) -> a fresh learning state of that task in that run
 NewLearner = Callable[[int, int], TaskLearner]
 # Called after each refit with the run, the task's learner, the fit's result and the rewards it fitted on.
 RefitHook = Callable[[int, TaskLearner, FQIResult, np.ndarray], None]
+
+
+def tie_rng(seed: int | None) -> np.random.Generator:
+    """
+    The generator of a run's random tie-breaks, derived from the run's seed (fresh entropy without one).
+
+    :param seed: the run's seed (a model's ``seed``)
+    """
+    if seed is None:
+        return np.random.default_rng()
+    return np.random.default_rng(np.random.SeedSequence([int(seed) % 2**64, 5]))
+
+
+def greedy_actions(
+    q_values: np.ndarray, rngs: Sequence[np.random.Generator | None] | None = None
+) -> np.ndarray:
+    """
+    argmax_a Q(s, a) of each state (eq. 3), a tie taken at random with the state's generator (None: the
+    first tied action). A draw is made for each state with a tie, in order, and for no other: the same
+    states give the same draws whichever way they are batched.
+
+    :param q_values: (n, n_actions)
+    :param rngs: one generator (or None) per state; None: no random tie-break
+    :return: actions (n,)
+    """
+    actions = q_values.argmax(axis=1)
+    if rngs is None:
+        return actions
+    tied = q_values == q_values[np.arange(len(q_values)), actions][:, None]
+    for i in np.flatnonzero(tied.sum(axis=1) > 1):
+        rng = rngs[i]
+        if rng is not None:
+            choices = np.flatnonzero(tied[i])
+            actions[i] = choices[rng.integers(len(choices))]
+    return actions
 
 
 @dataclass
@@ -48,11 +88,13 @@ class Run:
     :param pending: online transitions not yet written to the buffer (rows are read only at refits, so the
         engine writes a batch of them at once), as (state, action, reward, next state, task, truncated,
         terminated)
+    :param ties: the generator of its greedy actions' random tie-breaks (None: the first tied action)
     """
 
     buffer: SharedDynamicsReplayBuffer
     learners: dict[int, TaskLearner] = field(default_factory=dict)
     pending: list[tuple] = field(default_factory=list)
+    ties: np.random.Generator | None = None
 
     @property
     def n_rows(self) -> int:
@@ -136,11 +178,13 @@ class Engine:
 
     def greedy(self, runs: np.ndarray, states: np.ndarray, tasks: np.ndarray) -> np.ndarray:
         """
-        The greedy action of each state under its run's Q of its task: argmax_a Q(s, a) (eq. 3).
+        The greedy action of each state under its run's Q of its task: argmax_a Q(s, a) (eq. 3), ties taken
+        by its run's ``ties``.
 
         :return: actions (n,)
         """
-        return self.q_functions.q_values(runs, states, tasks).argmax(axis=1)
+        q_values = self.q_functions.q_values(runs, states, tasks)
+        return greedy_actions(q_values, [self.runs[run].ties for run in runs])
 
     def act(self, runs: np.ndarray, states: np.ndarray, tasks: np.ndarray) -> np.ndarray:
         """

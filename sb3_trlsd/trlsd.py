@@ -28,7 +28,7 @@ from sb3_trlsd.buffers import SharedDynamicsReplayBuffer
 from sb3_trlsd.callbacks import TaskView, has_tensorboard, log_hyperparameters, log_task_picture
 from sb3_trlsd.config import LearnerBuilder, TRLSDConfig, check_discount
 from sb3_trlsd.data import Transitions
-from sb3_trlsd.engine import Engine, Run
+from sb3_trlsd.engine import Engine, Run, tie_rng
 from sb3_trlsd.feature_maps import FeatureMap
 from sb3_trlsd.fqi import FQIResult
 from sb3_trlsd.observations import StateBoxMonitor, check_action_space, split_observation, state_space_of
@@ -109,6 +109,11 @@ class TRLSD(OffPolicyAlgorithm):
         fraction since its last refit: refits are then at most ~1 / refit_growth + ln(n) / ln(1 +
         refit_growth) over n samples (rarely-switching optimism's lazy updates), so their cost per step
         falls as a run goes on; 0 refits as soon as the trigger fires (the paper's Algorithm 1)
+    :param tie_break: the action taken among equal Q-values while learning (``learn``, ``act``, ``predict``
+        with ``deterministic=False``): ``"random"``, one of them drawn with a generator seeded by ``seed``
+        (a Q that is 0 everywhere, as before any reward is seen with kappa = 0, then explores at random
+        instead of repeating action 0), or ``"first"`` (the paper's reproduction). ``predict`` with
+        ``deterministic=True`` takes the first
     :param fqi_max_iterations: cap on Fitted-Q iterations per refit (None: the policy's own default, 500
         linear and 200 MLP, and under ``fqi_stop="targets"`` at most ``sb3_trlsd.fqi.targets_rule_cap(gamma,
         fqi_tol)``, three times what a gamma-contraction needs: 198 at gamma 0.9)
@@ -191,6 +196,7 @@ class TRLSD(OffPolicyAlgorithm):
         update_ratio: float = 2.0,
         first_fit: str = "first_step",
         refit_growth: float = 0.1,
+        tie_break: str = "random",
         fqi_max_iterations: int | None = None,
         fqi_tol: float | None = None,
         fqi_stop: str = "targets",
@@ -232,6 +238,7 @@ class TRLSD(OffPolicyAlgorithm):
             update_ratio=update_ratio,
             first_fit=first_fit,
             refit_growth=refit_growth,
+            tie_break=tie_break,
             fqi_max_iterations=fqi_max_iterations,
             fqi_tol=fqi_tol,
             fqi_stop=fqi_stop,
@@ -330,8 +337,11 @@ class TRLSD(OffPolicyAlgorithm):
 
     def _new_engine(self) -> Engine:
         """The engine of this model's one run: its shared buffer, task learners and policy."""
+        if not hasattr(self, "_ties"):  # a loaded model draws on from where it was saved
+            self._ties = tie_rng(self.seed)
+        ties = self._ties if self.config.tie_break == "random" else None
         return Engine(
-            [Run(self.replay_buffer, self.task_learners)],
+            [Run(self.replay_buffer, self.task_learners, ties=ties)],
             PolicyQFunctions(self.policy),
             lambda run, task: self.new_task_learner(task),
             gamma=self.gamma,
@@ -675,7 +685,11 @@ class TRLSD(OffPolicyAlgorithm):
         episode_start: np.ndarray | None = None,
         deterministic: bool = False,
     ) -> tuple[np.ndarray, tuple[np.ndarray, ...] | None]:
-        """SB3's ``predict``; a task whose Q-function was never fitted is warned about, once per task."""
+        """
+        SB3's ``predict``: the greedy action of each observation's task, equal Q-values broken by
+        ``tie_break`` unless ``deterministic`` (then the first). A task whose Q-function was never fitted is
+        warned about, once per task.
+        """
         states, tasks = split_observation(observation, self.replay_buffer.obs_shape[0], require_finite=True)
         self._state_box.check(states, stacklevel=2)
         for task in np.unique(tasks):
@@ -683,7 +697,11 @@ class TRLSD(OffPolicyAlgorithm):
             if (learner is None or not learner.fitted) and int(task) not in self._warned_unfitted:
                 self._warned_unfitted.add(int(task))
                 warnings.warn(UNFITTED_TASK.format(task=task), stacklevel=2)
-        return super().predict(observation, state, episode_start, deterministic)
+        if deterministic or self.config.tie_break == "first":
+            return super().predict(observation, state, episode_start, deterministic)
+        actions = self.engine.greedy(np.zeros(len(states), dtype=np.int64), states, tasks)
+        _, vectorized = self.policy.obs_to_tensor(observation)
+        return (actions if vectorized else actions.squeeze(axis=0)), state
 
 
 def _policy_class(policy: str | type[TaskQPolicy], aliases: dict[str, type[BasePolicy]]) -> type[BasePolicy]:

@@ -18,7 +18,7 @@ import numpy as np
 
 from sb3_trlsd.buffers import SharedDynamicsReplayBuffer
 from sb3_trlsd.data import Transitions
-from sb3_trlsd.engine import Engine, Run
+from sb3_trlsd.engine import Engine, Run, tie_rng
 from sb3_trlsd.policies import LinearPolicy
 from sb3_trlsd.q_functions import LinearRunsQFunctions
 from sb3_trlsd.trlsd import TRLSD
@@ -120,6 +120,9 @@ class Lockstep:
         if len(seeds) != n_runs:
             raise ValueError(f"one seed per run: {n_runs} runs, got {len(seeds)} seeds")
         self.seeds = list(seeds)
+        if self.model.config.tie_break == "random":
+            for run, seed in zip(self.engine.runs, seeds, strict=True):
+                run.ties = tie_rng(seed)
         everyone = np.arange(n_runs)
         states, tasks = self.envs.reset(everyone, list(seeds))
         records = [
