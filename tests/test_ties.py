@@ -1,4 +1,4 @@
-"""The greedy action among equal Q-values: drawn at random while learning (``tie_break``), the first otherwise."""
+"""The greedy action among equal Q-values: random while learning (``tie_break``), else the first."""
 
 import gymnasium as gym
 import numpy as np
