@@ -71,7 +71,7 @@ def greedy_actions(
         return actions
     tied = q_values == q_values[np.arange(len(q_values)), actions][:, None]
     for i in np.flatnonzero(tied.sum(axis=1) > 1):
-        rng = rngs[i]
+        rng = rngs[int(i)]
         if rng is not None:
             choices = np.flatnonzero(tied[i])
             actions[i] = choices[rng.integers(len(choices))]
