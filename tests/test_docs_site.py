@@ -135,7 +135,7 @@ def run_cheap(argv: list[str], cwd: Path, tmp_path: Path) -> None:
         argv[argv.index("--out") + 1] = str(tmp_path / Path(argv[argv.index("--out") + 1]).name)
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
     result = subprocess.run(
-        [sys.executable, "-m", "sb3_trlsd", *argv[1:]],
+        [sys.executable, "-m", "sb3_trlsd_lab", *argv[1:]],
         cwd=cwd,
         capture_output=True,
         text=True,

@@ -71,6 +71,7 @@ def test_learn_logs_pictures_and_hyperparameters_to_tensorboard(tmp_path):
         source_transitions=500,
         log_picture_every=3,
         tensorboard_log=str(tmp_path),
+        kappa=0.1,
         seed=0,
     )
     model.learn(total_timesteps=300)
