@@ -28,10 +28,13 @@ from sb3_trlsd_lab.execution.jobs import run_jobs
 CANDIDATES: dict[str, dict[str, Any]] = {
     "defaults": {},
     "kappa=1": {"kappa": 1.0},
+    "kappa=0.1": {"kappa": 0.1},
     "kappa=0.03": {"kappa": 0.03},
     "kappa=0.01": {"kappa": 0.01},
-    "kappa=0": {"kappa": 0.0},
     "reward_timing=start_state": {"reward_timing": "start_state"},
+    "tie_break=first": {"tie_break": "first"},
+    "feature_map=paper": {"feature_map": "paper"},
+    "refit_growth=0": {"refit_growth": 0.0},
 }
 
 
