@@ -37,8 +37,6 @@ from typing import Protocol
 
 import numpy as np
 
-from sb3_trlsd.features import grid_axes, grid_centres
-
 __all__ = [
     "ADAPTIVE_MAX_FEATURES",
     "ADAPTIVE_OVERLAP",
@@ -55,6 +53,8 @@ __all__ = [
     "RandomFourierFeatures",
     "check_feature_memory",
     "default_kernel_width",
+    "grid_axes",
+    "grid_centres",
     "grid_counts",
     "make_feature_map",
     "spacing_widths",
@@ -119,6 +119,39 @@ def _widths(name: str, sigma: Widths, dims: int) -> tuple[float, ...]:
             f"{name} must be a number > 0 or {dims} of them (one per state dimension), got {sigma!r}"
         )
     return tuple(float(w) for w in widths)
+
+
+def grid_centres(low: np.ndarray, high: np.ndarray, n_per_dim: int | Sequence[int]) -> np.ndarray:
+    """
+    Centres of the cells of a regular grid with ``n_per_dim`` cells per dimension over the box
+    [low, high]; on the maze (0, 5)^2 with 5 per dimension they are the paper's s_ij = (i - 0.5, j - 0.5).
+
+    :param low: lower corner of the box, (d,)
+    :param high: upper corner of the box, (d,)
+    :param n_per_dim: cells per dimension, one number for all or one per dimension
+    :return: (prod n_per_dim, d), the first coordinate varying slowest: on the maze, s_ij is row
+        5 (i - 1) + (j - 1), the maze's task index
+    """
+    # indexing="ij" makes the first axis vary slowest once flattened.
+    axes = grid_axes(low, high, n_per_dim)
+    return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, len(axes))
+
+
+def grid_axes(low: np.ndarray, high: np.ndarray, n_per_dim: int | Sequence[int]) -> list[np.ndarray]:
+    """
+    The cell centres of a regular grid along each dimension (``grid_centres`` is their product).
+
+    :param low: lower corner of the box, (d,)
+    :param high: upper corner of the box, (d,)
+    :param n_per_dim: cells per dimension, one number for all or one per dimension
+    :return: d arrays, of shape (n_per_dim[i],) for dimension i
+    """
+    low, high = np.asarray(low, dtype=np.float64), np.asarray(high, dtype=np.float64)
+    counts = np.broadcast_to(np.asarray(n_per_dim), low.shape)
+    return [
+        lo + (np.arange(n) + 0.5) * (hi - lo) / n
+        for lo, hi, n in zip(low, high, counts.tolist(), strict=True)
+    ]
 
 
 def grid_counts(

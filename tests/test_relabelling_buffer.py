@@ -13,7 +13,7 @@ from stable_baselines3.common.type_aliases import DictReplayBufferSamples, Repla
 
 from sb3_trlsd import RelabellingReplayBuffer, Transitions, collect_transitions, dqn_q_values
 from sb3_trlsd.config import HEAD_NAMES
-from sb3_trlsd.features import gaussian_similarity
+from sb3_trlsd.similarity import gaussian_similarity
 from sb3_trlsd_envs.evaluation import greedy_expected_rewards
 from sb3_trlsd_lab.benchmarks.baselines import DQN_SETTINGS, one_torch_thread
 from tests.conftest import MAZE_ID

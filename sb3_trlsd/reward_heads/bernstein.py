@@ -14,7 +14,6 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from sb3_trlsd.arrays import GrowableArray
-from sb3_trlsd.features import gaussian_similarity, similarity_widths
 from sb3_trlsd.reward_heads.base import (
     DEFAULT_W_FLOOR,
     RewardHead,
@@ -22,6 +21,7 @@ from sb3_trlsd.reward_heads.base import (
     check_positive,
 )
 from sb3_trlsd.reward_heads.ridge import KERNEL_BLOCK
+from sb3_trlsd.similarity import gaussian_similarity, similarity_widths
 
 __all__ = [
     "BernsteinRewardHead",

@@ -7,7 +7,6 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from sb3_trlsd.arrays import GrowableArray
-from sb3_trlsd.features import gaussian_similarity, similarity_widths
 from sb3_trlsd.reward_heads.base import (
     DEFAULT_W_FLOOR,
     RewardHead,
@@ -16,6 +15,7 @@ from sb3_trlsd.reward_heads.base import (
     confidence_width,
 )
 from sb3_trlsd.reward_heads.ridge_regression import RidgeRegression
+from sb3_trlsd.similarity import gaussian_similarity, similarity_widths
 
 __all__ = ["SIMILARITIES", "KernelSumTracker", "RidgeRewardHead"]
 

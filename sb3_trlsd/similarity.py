@@ -1,4 +1,4 @@
-"""The Gaussian similarity of eq. 6 (eq. 7 is eq. 6 on features) and RBF grid centres, over batches.
+"""The Gaussian similarity of eq. 6 (eq. 7 is eq. 6 on features), over batches.
 
 States and features are float64 arrays with one row per point: states (n, d), features phi (n, k).
 Distances that overflow (states beyond ~1e150) count as infinite, so their similarity is 0, never NaN.
@@ -10,7 +10,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-__all__ = ["gaussian_similarity", "grid_axes", "grid_centres", "similarity_widths", "squared_distances"]
+__all__ = ["gaussian_similarity", "similarity_widths", "squared_distances"]
 
 DIRECT_POINTS = 4  # up to this many query points, distances are taken directly (see squared_distances)
 
@@ -84,36 +84,3 @@ def similarity_widths(sigma: float | Sequence[float] | np.ndarray) -> tuple[floa
     if widths.ndim != 1 or not len(widths) or not np.all(np.isfinite(widths)) or not np.all(widths > 0):
         raise ValueError(f"sigma must be > 0 and finite (the width of the similarity), got {sigma!r}")
     return float(widths[0]), None if np.all(widths == widths[0]) else widths[0] / widths
-
-
-def grid_centres(low: np.ndarray, high: np.ndarray, n_per_dim: int | Sequence[int]) -> np.ndarray:
-    """
-    Centres of the cells of a regular grid with ``n_per_dim`` cells per dimension over the box
-    [low, high]; on the maze (0, 5)^2 with 5 per dimension they are the paper's s_ij = (i - 0.5, j - 0.5).
-
-    :param low: lower corner of the box, (d,)
-    :param high: upper corner of the box, (d,)
-    :param n_per_dim: cells per dimension, one number for all or one per dimension
-    :return: (prod n_per_dim, d), the first coordinate varying slowest: on the maze, s_ij is row
-        5 (i - 1) + (j - 1), the maze's task index
-    """
-    # indexing="ij" makes the first axis vary slowest once flattened.
-    axes = grid_axes(low, high, n_per_dim)
-    return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, len(axes))
-
-
-def grid_axes(low: np.ndarray, high: np.ndarray, n_per_dim: int | Sequence[int]) -> list[np.ndarray]:
-    """
-    The cell centres of a regular grid along each dimension (``grid_centres`` is their product).
-
-    :param low: lower corner of the box, (d,)
-    :param high: upper corner of the box, (d,)
-    :param n_per_dim: cells per dimension, one number for all or one per dimension
-    :return: d arrays, of shape (n_per_dim[i],) for dimension i
-    """
-    low, high = np.asarray(low, dtype=np.float64), np.asarray(high, dtype=np.float64)
-    counts = np.broadcast_to(np.asarray(n_per_dim), low.shape)
-    return [
-        lo + (np.arange(n) + 0.5) * (hi - lo) / n
-        for lo, hi, n in zip(low, high, counts.tolist(), strict=True)
-    ]
