@@ -2,14 +2,12 @@
 
 from __future__ import annotations
 
-from typing import NamedTuple
-
 import numpy as np
 import numpy.typing as npt
 from scipy.linalg import cho_factor, cho_solve
 
 from sb3_trlsd.arrays import GrowableColumns
-from sb3_trlsd.fqi.linear_runs import fit_linear_fqi_runs
+from sb3_trlsd.fqi.linear_runs import ActionBlock, fit_linear_fqi_runs
 from sb3_trlsd.fqi.targets import (
     DEFAULT_LINEAR_ITERATIONS,
     DEFAULT_RIDGE,
@@ -19,15 +17,6 @@ from sb3_trlsd.fqi.targets import (
 )
 
 __all__ = ["ActionBlock", "LinearFQISolver", "fit_linear_fqi"]
-
-
-class ActionBlock(NamedTuple):
-    """The transitions of one action as the projection uses them, and the inverse of its Gram matrix."""
-
-    action: int
-    phi_t: np.ndarray  # X_a^T, (k, n_a)
-    rows: np.ndarray | slice  # row of each column in the order of extend calls, (n_a,) int, or their range
-    inverse: np.ndarray  # (X_a^T X_a + ridge I)^-1, (k, k), float64
 
 
 class LinearFQISolver:

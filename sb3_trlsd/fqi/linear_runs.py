@@ -8,7 +8,7 @@ run (``LinearFQISolver.fit``, and so ``TRLSD``) is this with a batch of one.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import TYPE_CHECKING, NamedTuple
+from typing import NamedTuple, Protocol
 
 import numpy as np
 from scipy.linalg import cho_factor, cho_solve
@@ -24,10 +24,7 @@ from sb3_trlsd.fqi.targets import (
     warn_at_cap,
 )
 
-if TYPE_CHECKING:
-    from sb3_trlsd.fqi.linear import ActionBlock, LinearFQISolver
-
-__all__ = ["fit_linear_fqi_runs"]
+__all__ = ["ActionBlock", "FQIRows", "fit_linear_fqi_runs"]
 
 # Up to this many runs, X_a^T y_a over the shared rows is one matrix-vector product per run: a (runs, n_a) x
 # (n_a, k) product with few runs and long rows runs at a fraction of BLAS's speed on either form (measured on
@@ -35,11 +32,59 @@ __all__ = ["fit_linear_fqi_runs"]
 GEMV_RUNS = 6
 
 
+class ActionBlock(NamedTuple):
+    """The transitions of one action as the projection uses them, and the inverse of its Gram matrix."""
+
+    action: int
+    phi_t: np.ndarray  # X_a^T, (k, n_a)
+    rows: np.ndarray | slice  # row of each column in the order they came, (n_a,) int, or their range
+    inverse: np.ndarray  # (X_a^T X_a + ridge I)^-1, (k, k), float64
+
+
+class FQIRows(Protocol):
+    """
+    The transitions a linear fit reads (``LinearFQISolver`` stores them): Phi(s) action by action with each
+    action's Gram matrix, and Phi(s') of every row in the order the rows came.
+    """
+
+    n_features: int
+    n_actions: int
+    ridge: float
+    dtype: np.dtype
+    n_transitions: int
+
+    def n_rows_of(self, action: int) -> int:
+        """The rows of one action."""
+        ...
+
+    def gram(self, action: int) -> np.ndarray:
+        """X_a^T X_a + ridge I of one action, (k, k) float64."""
+        ...
+
+    def inverse(self, action: int) -> np.ndarray:
+        """(X_a^T X_a + ridge I)^-1 of one action, (k, k) float64."""
+        ...
+
+    def action_blocks(self) -> list[ActionBlock]:
+        """The actions with rows, each with its columns X_a^T and inverse Gram matrix."""
+        ...
+
+    @property
+    def next_phi_t(self) -> np.ndarray:
+        """Phi(s')^T of every row, (k, n)."""
+        ...
+
+    @property
+    def terminated(self) -> np.ndarray | None:
+        """Whether each row's s' is absorbing, (n,); None when none is."""
+        ...
+
+
 class _Run(NamedTuple):
     """What one run of ``fit_linear_fqi_runs`` fits: its own rows, projections and bounds."""
 
     theta0: np.ndarray  # (n_actions, k) float64
-    own: LinearFQISolver | None  # its own rows
+    own: FQIRows | None  # its own rows
     own_rewards: np.ndarray  # its rewards of them, (n_own,) in the storage precision
     inverse: np.ndarray  # (n_actions, k, k): (G_a + G_a,r - ridge I)^-1, identity where a has no row
     has_rows: np.ndarray  # (n_actions,) bool
@@ -47,7 +92,7 @@ class _Run(NamedTuple):
     n_rows: int
 
 
-def _check_solvers(solvers: list[LinearFQISolver]) -> LinearFQISolver:
+def _check_solvers(solvers: list[FQIRows]) -> FQIRows:
     """The first solver, once every solver is known to have its sizes, ridge and precision."""
     first = solvers[0]
     for solver in solvers[1:]:
@@ -57,9 +102,7 @@ def _check_solvers(solvers: list[LinearFQISolver]) -> LinearFQISolver:
     return first
 
 
-def _projection_of(
-    shared: LinearFQISolver | None, own: LinearFQISolver | None, action: int
-) -> np.ndarray | None:
+def _projection_of(shared: FQIRows | None, own: FQIRows | None, action: int) -> np.ndarray | None:
     """The inverse Gram matrix of one action over the shared rows and a run's own ones (None: no row)."""
     in_shared = shared is not None and shared.n_rows_of(action) > 0
     in_own = own is not None and own.n_rows_of(action) > 0
@@ -122,7 +165,7 @@ class _SharedRows(NamedTuple):
     order: np.ndarray | None  # the stored row of each column (None: the stored order is this layout)
 
     @classmethod
-    def of(cls, solver: LinearFQISolver) -> _SharedRows:
+    def of(cls, solver: FQIRows) -> _SharedRows:
         """
         The solver's rows as they are when each action's are a range (a batch's source, stored sorted by
         action); otherwise a copy of Phi(s')^T in action order, made once per fit: reading the targets of
@@ -150,9 +193,7 @@ class _SharedRows(NamedTuple):
 class _BatchedFit:
     """The iterations of ``fit_linear_fqi_runs`` over the runs still iterating (``active``: their indices)."""
 
-    def __init__(
-        self, shared: LinearFQISolver | None, runs: list[_Run], shared_rewards: np.ndarray, gamma: float
-    ):
+    def __init__(self, shared: FQIRows | None, runs: list[_Run], shared_rewards: np.ndarray, gamma: float):
         self.shared = None if shared is None else _SharedRows.of(shared)
         self.shared_blocks = [] if self.shared is None else self.shared.blocks
         self.runs, self.gamma = runs, gamma
@@ -269,8 +310,8 @@ class _BatchedFit:
 
 
 def fit_linear_fqi_runs(
-    shared: LinearFQISolver | None,
-    own: Sequence[LinearFQISolver | None],
+    shared: FQIRows | None,
+    own: Sequence[FQIRows | None],
     rewards: Sequence[np.ndarray],
     *,
     gamma: float,
