@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from sb3_trlsd_envs.cartpole_dynamics import target_rewards
 from sb3_trlsd_envs.rendering import TARGET_GREEN, WALL_WIDTH
 
 __all__ = ["draw_cartpole", "draw_four_rooms", "render_cartpole", "render_four_rooms"]
@@ -116,8 +117,6 @@ def draw_cartpole(
 
     left, right = -x_threshold - 0.3, x_threshold + 0.3
     if target is not None:
-        from sb3_trlsd_envs.goal_cartpole import target_rewards
-
         on_track = np.zeros((400, 4))
         on_track[:, 0] = np.linspace(left, right, 400)
         reward = target_rewards(on_track, targets[target], goal_width)[None]  # 0 off the track

@@ -9,6 +9,7 @@ import numpy as np
 from gymnasium import spaces
 
 from sb3_trlsd_envs.dynamics import as_segments, maze_step
+from sb3_trlsd_envs.family_rendering import render_four_rooms
 from sb3_trlsd_envs.multitask import TaskFamilyEnv, check_non_negative, random_rollouts, trajectory_lengths
 
 __all__ = [
@@ -284,8 +285,6 @@ class FourRooms(TaskFamilyEnv):
         return {"task": self.task, "goal": tuple(self.goals[self.task].tolist())}
 
     def _render(self) -> np.ndarray:
-        from sb3_trlsd_envs.family_rendering import render_four_rooms
-
         return render_four_rooms(
             self.walls, self.goals, self.goal_radius, target=self.task, trajectory=np.array(self.trajectory)
         )

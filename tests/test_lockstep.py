@@ -10,7 +10,7 @@ import pytest
 from sb3_trlsd import TRLSD
 from sb3_trlsd.fqi import LinearFQISolver, fit_linear_fqi_runs
 from sb3_trlsd_envs import CELL_NOISE_STDS, FOUR_ROOMS_ID, MAZE_ID
-from sb3_trlsd_envs.maze_runs import step_mazes
+from sb3_trlsd_envs.maze import step_mazes
 from sb3_trlsd_lab.execution.batches import batch_runs, multitask_batch, source_seed
 from sb3_trlsd_lab.execution.env_batches import GymEnvBatch, MazeBatch, env_batch
 from sb3_trlsd_lab.execution.lockstep import Lockstep

@@ -1,7 +1,7 @@
 """The envs of a batch of runs, stepped together (the ``EnvBatch`` of ``lockstep``).
 
 ``env_batch`` picks how: mazes with only pass-through wrappers around them move as one vectorised call
-(``sb3_trlsd_envs.maze_runs.step_mazes``), each drawing what it draws alone, their time limits counted
+(``sb3_trlsd_envs.maze.step_mazes``), each drawing what it draws alone, their time limits counted
 here; any other env is stepped one by one through its wrappers.
 """
 
@@ -14,8 +14,7 @@ import numpy as np
 from gymnasium.wrappers import OrderEnforcing, PassiveEnvChecker, TimeLimit
 
 from sb3_trlsd.observations import split_observation, state_space_of
-from sb3_trlsd_envs.maze import SharedDynamicsMaze
-from sb3_trlsd_envs.maze_runs import step_mazes
+from sb3_trlsd_envs.maze import SharedDynamicsMaze, step_mazes
 
 __all__ = ["GymEnvBatch", "MazeBatch", "env_batch"]
 
