@@ -52,8 +52,8 @@ class RelabellingReplayBuffer(SharedDynamicsReplayBuffer):
     or a ``{"state": Box, "task": Discrete}`` Dict; the state Box must be bounded, or ``state_bounds``
     given, because features and similarity widths are fractions of the state box (as in ``TRLSD``).
 
-    Defaults are ``TRLSD``'s (the paper's on the maze: kappa = 0.1, sigma = 0.2, 5 x 5 RBFs of width 0.2).
-    With ``kappa > 0`` the bonus far from any online sample is large (up to
+    Defaults are ``TRLSD``'s: kappa = 0 (the estimate R^ alone; the learner's own exploration explores), the
+    feature map and similarity widths from the state box. With ``kappa > 0`` the bonus far from any online sample is large (up to
     kappa * sqrt(log|Xi_tau| / w_floor), see ``reward_heads.base``): a deep Q-learner fits such targets
     slowly, so cap R~ at a known bound of the reward with ``reward_head_kwargs={"r_max": ...}``. The
     relabelled rows are many (the paper's 25,000 source rows): DQN gains from more gradient steps per env
@@ -134,7 +134,7 @@ class RelabellingReplayBuffer(SharedDynamicsReplayBuffer):
         optimize_memory_usage: bool = False,
         handle_timeout_termination: bool = True,
         reward_head: str | RewardHead = "ridge",
-        kappa: float = 0.1,
+        kappa: float = 0.0,
         sigma: float | Sequence[float] | None = None,
         similarity: str = "state",
         feature_map: str | FeatureMap = "auto",

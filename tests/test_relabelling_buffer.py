@@ -1,5 +1,7 @@
 """RelabellingReplayBuffer: TRLSD's relabelling at sample time, inside SB3's DQN and sb3-contrib's QR-DQN."""
 
+import dataclasses
+import inspect
 import pickle
 
 import gymnasium as gym
@@ -12,7 +14,7 @@ from stable_baselines3 import DQN
 from stable_baselines3.common.type_aliases import DictReplayBufferSamples, ReplayBufferSamples
 
 from sb3_trlsd import RelabellingReplayBuffer, Transitions, collect_transitions, dqn_q_values
-from sb3_trlsd.config import HEAD_NAMES
+from sb3_trlsd.config import HEAD_NAMES, TRLSDConfig
 from sb3_trlsd.similarity import gaussian_similarity
 from sb3_trlsd_envs.evaluation import greedy_expected_rewards
 from sb3_trlsd_lab.benchmarks.baselines import DQN_SETTINGS, one_torch_thread
@@ -185,6 +187,22 @@ def test_sampling_a_source_row_before_any_online_row_says_what_to_do(maze_spaces
         buffer.sample(8)
 
 
+def test_the_buffer_takes_trlsds_defaults():
+    """Every setting the buffer shares with TRLSD defaults to TRLSD's (its config's), so that one set of
+    defaults holds for both; a buffer sees no env, so its reward timing "auto" is written out."""
+    fields = {field.name: field for field in dataclasses.fields(TRLSDConfig)}
+    shared = [p for p in inspect.signature(RelabellingReplayBuffer).parameters.values() if p.name in fields]
+    assert {p.name for p in shared} >= {"reward_head", "kappa", "sigma", "feature_map", "reward_timing"}
+    for parameter in shared:
+        field = fields[parameter.name]
+        default = field.default_factory() if field.default is dataclasses.MISSING else field.default
+        if parameter.name == "reward_timing":
+            assert (parameter.default, default) == ("next_state", "auto")
+        else:
+            same = parameter.default == default or (parameter.default is None and default == {})
+            assert same, parameter.name
+
+
 def test_bad_settings_and_oversized_sources_are_refused(maze_spaces):
     """An unknown head, a known one without its reward_fn, or source rows that would overwrite stored rows,
     raise a ValueError."""
@@ -287,6 +305,7 @@ def greedy_reward_after_learning(seed, n_steps, source=None):
     if source is not None:
         buffer["replay_buffer_kwargs"] = {
             "reward_head": "tabular",
+            "kappa": 0.1,
             "reward_head_kwargs": {"r_max": 1.0},
             "reward_timing": "start_state",
         }
