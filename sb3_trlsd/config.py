@@ -430,7 +430,7 @@ class LearnerBuilder:
     reward_timing: str
     seed: int | None = None
 
-    def reward_head(
+    def new_reward_head(
         self, task: int, reward_fn: RewardFn | None = None, seed: int | None = None
     ) -> RewardHead:
         """
@@ -469,22 +469,22 @@ class LearnerBuilder:
             **kwargs,
         )
 
-    def task_learner(
+    def new_task_learner(
         self, task: int, reward_fn: RewardFn | None = None, seed: int | None = None
     ) -> TaskLearner:
         """
-        The learning state of ``task`` with no samples: its reward head (``reward_head``), the config's
+        The learning state of ``task`` with no samples: its reward head (``new_reward_head``), the config's
         ``update_ratio``, ``first_fit`` and ``refit_growth``, and the reward timing.
 
         :param task: the task
-        :param reward_fn: see ``reward_head``
-        :param seed: see ``reward_head``
+        :param reward_fn: see ``new_reward_head``
+        :param seed: see ``new_reward_head``
         :return: the learner
         """
         config = self.config
         return TaskLearner(
             task,
-            self.reward_head(task, reward_fn, seed),
+            self.new_reward_head(task, reward_fn, seed),
             config.update_ratio,
             first_fit=config.first_fit,
             reward_timing=self.reward_timing,

@@ -53,11 +53,12 @@ class RelabellingReplayBuffer(SharedDynamicsReplayBuffer):
     given, because features and similarity widths are fractions of the state box (as in ``TRLSD``).
 
     Defaults are ``TRLSD``'s: kappa = 0 (the estimate R^ alone; the learner's own exploration explores), the
-    feature map and similarity widths from the state box. With ``kappa > 0`` the bonus far from any online sample is large (up to
-    kappa * sqrt(log|Xi_tau| / w_floor), see ``reward_heads.base``): a deep Q-learner fits such targets
-    slowly, so cap R~ at a known bound of the reward with ``reward_head_kwargs={"r_max": ...}``. The
-    relabelled rows are many (the paper's 25,000 source rows): DQN gains from more gradient steps per env
-    step and more frequent target updates than for its own few rows (``benchmarks/bench_relabelling_dqn.py``).
+    feature map and similarity widths from the state box. With ``kappa > 0`` the bonus far from any online
+    sample is large (up to kappa * sqrt(log|Xi_tau| / w_floor), see ``reward_heads.base``): a deep
+    Q-learner fits such targets slowly, so cap R~ at a known bound of the reward with
+    ``reward_head_kwargs={"r_max": ...}``. The relabelled rows are many (the paper's 25,000 source rows): DQN
+    gains from more gradient steps per env step and more frequent target updates than for its own few rows
+    (``benchmarks/bench_relabelling_dqn.py``).
 
     Usage, with DQN on the maze (QR-DQN and the other off-policy algorithms take it the same way)::
 
@@ -180,7 +181,9 @@ class RelabellingReplayBuffer(SharedDynamicsReplayBuffer):
         builder = self.config.builder(observation_space, n_actions=0, linear_q=False, seed=seed)
         self.reward_timing = builder.reward_timing
         self.features = builder.features
-        self.reward_heads = [builder.reward_head(task, reward_fn=reward_fn) for task in range(self.n_tasks)]
+        self.reward_heads = [
+            builder.new_reward_head(task, reward_fn=reward_fn) for task in range(self.n_tasks)
+        ]
 
     # ----------------------------------------------------------------- storing
     def add(

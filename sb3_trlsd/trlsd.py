@@ -372,7 +372,9 @@ class TRLSD(OffPolicyAlgorithm):
         :return: the learner
         """
         reward_fn = self._known_reward_fn() if self.config.reward_head == "known" else None
-        return self._builder.task_learner(task, reward_fn=reward_fn, seed=self.seed if seed is None else seed)
+        return self._builder.new_task_learner(
+            task, reward_fn=reward_fn, seed=self.seed if seed is None else seed
+        )
 
     def task_learner(self, task: int) -> TaskLearner:
         """
