@@ -34,6 +34,10 @@ CANDIDATES: dict[str, dict[str, Any]] = {
     "reward_timing=start_state": {"reward_timing": "start_state"},
     "tie_break=first": {"tie_break": "first"},
     "feature_map=paper": {"feature_map": "paper"},
+    # On integer states: "auto" as on real states (a budget under the lattice's points), or the lattice by
+    # name (integer-state families only: four-room, resource-gathering, deep-sea treasure).
+    "max_features=64": {"max_features": 64},
+    "feature_map=lattice": {"feature_map": "lattice"},
     "refit_growth=0": {"refit_growth": 0.0},
 }
 

@@ -388,6 +388,7 @@ class TRLSDConfig:
                     seed=0 if seed is None else seed,
                     n_actions=n_actions if linear_q else 0,
                     n_tasks=task_count_of(observation_space) if self.heads_use_features() else 0,
+                    integer_states=np.issubdtype(state_space_of(observation_space).dtype, np.integer),
                 )
             )
         return LearnerBuilder(self, low, high, features, self.timing_for(env_reward_timing), seed)

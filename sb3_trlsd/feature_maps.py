@@ -19,12 +19,13 @@ the defaults mean the same thing on any env. Counts of centres and widths may di
   Farahmand et al. 2009). With a few hundred features, they approximate the kernel too coarsely for a
   greedy policy from 4 dimensions on (``benchmarks/bench_feature_maps.py``).
 
-``make_feature_map`` builds them by name: ``"auto"`` (the grid, widths of ``ADAPTIVE_OVERLAP`` spacings,
-while it has 3 centres a dimension within ``ADAPTIVE_MAX_FEATURES``; else ``AdditiveRBF``), ``"paper"``
-(the grid while it has at most ``MAX_GRID_FEATURES`` centres, each of a fifth of the spacing wide as on
-the maze, else Fourier features) or one map; ``grid_counts`` chooses counts per
-dimension under a budget, ``spacing_widths`` widths from the spacing. It refuses, before allocating, any
-map whose Gram matrices would take more than ``MEMORY_BOUND_BYTES``.
+``make_feature_map`` builds them by name: ``"auto"`` (the grid, widths of ``ADAPTIVE_OVERLAP`` spacings, while
+it has 3 centres a dimension within ``ADAPTIVE_MAX_FEATURES``; else ``AdditiveRBF``), ``"paper"`` (the grid
+while it has at most ``MAX_GRID_FEATURES`` centres, each of a fifth of the spacing wide as on the maze, else
+Fourier features), ``"lattice"`` (for states on an integer lattice, a grid-world's cells: one RBF per lattice
+point, the grid while it has at most ``MAX_GRID_FEATURES`` points, else added) or one map; ``grid_counts``
+chooses counts per dimension under a budget, ``spacing_widths`` widths from the spacing. It refuses, before
+allocating, any map whose Gram matrices would take more than ``MEMORY_BOUND_BYTES``.
 """
 
 from __future__ import annotations
@@ -43,6 +44,7 @@ __all__ = [
     "ADDITIVE_PER_DIM",
     "FEATURE_MAPS",
     "FOURIER_FEATURES_PER_DIM",
+    "LATTICE_OVERLAP",
     "MAX_GRID_FEATURES",
     "MEMORY_BOUND_BYTES",
     "PAPER_OVERLAP",
@@ -60,7 +62,7 @@ __all__ = [
     "spacing_widths",
 ]
 
-FEATURE_MAPS = ("auto", "paper", "rbf", "fourier", "additive")
+FEATURE_MAPS = ("auto", "paper", "rbf", "fourier", "additive", "lattice")
 GRID_SHAPES = ("cube", "box")
 MAX_GRID_FEATURES = 125  # "paper" keeps the RBF grid up to 5 ** 3 centres
 FOURIER_FEATURES_PER_DIM = 50
@@ -71,6 +73,9 @@ ADAPTIVE_OVERLAP = 1.5  # "auto" and "additive": widths of 1.5 spacings (benchma
 # within 0.02 of the quality of 150 on the point-goal benchmark, at a third to a tenth of the fit's time.
 ADAPTIVE_MAX_FEATURES = 64
 ADDITIVE_PER_DIM = 8  # "additive": Gaussians per dimension, while they fit the budget
+# "lattice": one RBF per point of an integer lattice, half the spacing wide (tuned: see the benchmarks page),
+# a grid up to MAX_GRID_FEATURES points, else added.
+LATTICE_OVERLAP = 0.5
 Widths = float | Sequence[float] | np.ndarray
 Counts = int | Sequence[int]
 
@@ -220,6 +225,15 @@ def spacing_widths(counts: Sequence[int], overlap: float) -> tuple[float, ...]:
     :return: the widths, (d,)
     """
     return tuple(_overlap(overlap) / int(n) for n in counts)
+
+
+def _check_overlap(kind: str, rbf_overlap: float, rbf_sigma: Widths | None) -> None:
+    """An ``rbf_overlap`` that a map of ``kind`` can take, given with no ``rbf_sigma``, or a ValueError."""
+    if rbf_sigma is not None:
+        raise ValueError("give rbf_sigma (a fraction of the box) or rbf_overlap (of the spacing), not both")
+    if kind == "fourier":
+        raise ValueError("rbf_overlap is the width of RBFs in their spacing; Fourier features take rbf_sigma")
+    _overlap(rbf_overlap)
 
 
 def _overlap(overlap: float) -> float:
@@ -478,6 +492,7 @@ def make_feature_map(
     seed: int = 0,
     n_actions: int = 1,
     n_tasks: int = 1,
+    integer_states: bool = False,
 ) -> FeatureMap:
     """
     A feature map over the box [low, high] by name, with defaults that do not depend on the box's units,
@@ -485,8 +500,13 @@ def make_feature_map(
 
     :param kind: ``"rbf"`` (an ``RBFGrid``), ``"fourier"`` (``RandomFourierFeatures``), ``"additive"``
         (``AdditiveRBF``), ``"paper"`` (the grid while it has at most ``max_features`` centres, else Fourier
-        features) or ``"auto"`` (a grid of ``ADAPTIVE_OVERLAP`` widths, counts from the box under
-        ``max_features``, while every dimension gets at least 3 centres; else ``AdditiveRBF``)
+        features), ``"auto"`` (``"lattice"`` for ``integer_states`` whose lattice has at most
+        ``max_features`` points, default ``MAX_GRID_FEATURES``, when neither counts nor widths are given;
+        else a grid of ``ADAPTIVE_OVERLAP`` widths, counts from the box under ``max_features``, while every
+        dimension gets at least 3 centres; else ``AdditiveRBF``) or
+        ``"lattice"`` (states on the integer points of the box, whose bounds must then be integers: one RBF
+        at each, ``LATTICE_OVERLAP`` of the unit spacing wide unless ``rbf_overlap`` says otherwise; the
+        grid while it has at most ``max_features`` points (default ``MAX_GRID_FEATURES``), else added)
     :param low: lower corner of the state box, (d,)
     :param high: upper corner, (d,)
     :param rbf_per_dim: centres per dimension of the grid (or Gaussians per dimension of ``"additive"``):
@@ -507,26 +527,24 @@ def make_feature_map(
     :param seed: seed of the Fourier features
     :param n_actions: actions of the env (one Gram matrix each)
     :param n_tasks: tasks of the env (one ridge head each)
+    :param integer_states: whether the states are integers (a Box of an integer dtype), which ``"auto"``
+        reads
     :return: the map
     """
     if kind not in FEATURE_MAPS:
         raise ValueError(f"feature_map must be one of {list(FEATURE_MAPS)} or a FeatureMap, got {kind!r}")
     low_t, high_t = _box(low, high)
     dims = len(low_t)
+    if kind == "auto" and integer_states:
+        kind = _auto_on_integers(low_t, high_t, max_features, rbf_per_dim, rbf_sigma)
+    if kind == "lattice":
+        return _lattice(low_t, high_t, rbf_per_dim, rbf_sigma, rbf_overlap, max_features, n_actions, n_tasks)
     new_defaults = kind in ("additive", "auto")
     if max_features is not None and not _is_count(max_features):
         raise ValueError(f"max_features must be an integer >= 1 or None, got {max_features!r}")
     budget = max_features or (ADAPTIVE_MAX_FEATURES if new_defaults else MAX_GRID_FEATURES)
     if rbf_overlap is not None:
-        if rbf_sigma is not None:
-            raise ValueError(
-                "give rbf_sigma (a fraction of the box) or rbf_overlap (of the spacing), not both"
-            )
-        if kind == "fourier":
-            raise ValueError(
-                "rbf_overlap is the width of RBFs in their spacing; Fourier features take rbf_sigma"
-            )
-        _overlap(rbf_overlap)
+        _check_overlap(kind, rbf_overlap, rbf_sigma)
     if rbf_per_dim is None:
         rbf_per_dim = "cube" if new_defaults else 5
     shape = "cube"
@@ -587,3 +605,53 @@ def _fourier_features(
         raise ValueError(f"fourier_features must be an integer >= 1, got {m!r}")
     check_feature_memory(m, n_actions, n_tasks, f"feature_map='fourier' with fourier_features={m}")
     return RandomFourierFeatures(low, high, m, default_kernel_width(dims) if sigma is None else sigma, seed)
+
+
+def _auto_on_integers(
+    low: tuple[float, ...],
+    high: tuple[float, ...],
+    max_features: int | None,
+    rbf_per_dim: Counts | str | None,
+    rbf_sigma: Widths | None,
+) -> str:
+    """
+    ``"auto"`` on integer states: ``"lattice"`` for integer bounds with at most the budget of lattice
+    points and no counts or widths given, else ``"auto"`` as on any states.
+    """
+    integer_bounds = all(float(v).is_integer() for v in low + high)
+    if rbf_per_dim is not None or rbf_sigma is not None or not integer_bounds:
+        return "auto"
+    points = math.prod(int(h - lo) + 1 for lo, h in zip(low, high, strict=True))
+    return "lattice" if points <= (max_features or MAX_GRID_FEATURES) else "auto"
+
+
+def _lattice(
+    low: tuple[float, ...],
+    high: tuple[float, ...],
+    rbf_per_dim: Counts | str | None,
+    rbf_sigma: Widths | None,
+    rbf_overlap: float | None,
+    max_features: int | None,
+    n_actions: int,
+    n_tasks: int,
+) -> FeatureMap:
+    """``make_feature_map``'s ``"lattice"``: an RBF at each integer point of [low, high]."""
+    if rbf_per_dim is not None or rbf_sigma is not None:
+        raise ValueError(
+            "feature_map='lattice' takes its centres (one per integer point of the state box) and widths "
+            "(rbf_overlap of the unit spacing) from the box: leave rbf_per_dim and rbf_sigma unset"
+        )
+    if not (all(float(v).is_integer() for v in low + high)):
+        raise ValueError(
+            f"feature_map='lattice' needs integer state bounds (the lattice's first and last points), got "
+            f"low {list(low)} and high {list(high)}: give state_bounds=(low, high) with integers"
+        )
+    counts = tuple(int(h - lo) + 1 for lo, h in zip(low, high, strict=True))
+    grid = math.prod(counts) <= (max_features or MAX_GRID_FEATURES)
+    n_features = math.prod(counts) if grid else sum(counts)
+    check_feature_memory(n_features, n_actions, n_tasks, f"feature_map='lattice' on {counts} lattice points")
+    # The box one half spacing wider on each side puts the cell centres of the grid on the lattice points.
+    box_low, box_high = tuple(v - 0.5 for v in low), tuple(v + 0.5 for v in high)
+    widths = spacing_widths(counts, LATTICE_OVERLAP if rbf_overlap is None else rbf_overlap)
+    n_per_dim = counts[0] if len(set(counts)) == 1 else counts
+    return (RBFGrid if grid else AdditiveRBF)(box_low, box_high, n_per_dim, widths)

@@ -93,6 +93,42 @@ def test_the_default_features_follow_the_box_and_the_dimension():
         TRLSD("LinearPolicy", six_d, feature_map="rbf", rbf_per_dim=5, state_bounds=(-np.ones(6), np.ones(6)))
 
 
+class GridWalk(gym.Env):
+    """A 6 x 4 grid world whose states are a Box of integers, the reward on the cell (5, 3)."""
+
+    observation_space = spaces.Box(0, np.array([5, 3]), dtype=np.int64)
+    action_space = spaces.Discrete(4)
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        self.cell = np.zeros(2, dtype=np.int64)
+        return self.cell.copy(), {}
+
+    def step(self, action):
+        move = np.array([[1, 0], [-1, 0], [0, 1], [0, -1]])[action]
+        self.cell = np.clip(self.cell + move, 0, [5, 3])
+        return self.cell.copy(), float(np.all(self.cell == [5, 3])), False, False, {}
+
+
+def test_integer_states_get_one_rbf_per_cell_and_learn():
+    """On a Box of integers the default features are the lattice's (one RBF per cell, half a cell wide), for
+    the greedy policy after 600 steps reaches the rewarded cell (8 steps away) and keeps coming back to it."""
+    model = TRLSD("LinearPolicy", gym.wrappers.TimeLimit(GridWalk(), 30), seed=0)
+    assert isinstance(model.features, RBFGrid) and model.features.n_features == 24
+    np.testing.assert_allclose(model.features.widths, (0.5, 0.5))
+    phi = model.features(np.array([[2.0, 1.0]]))
+    assert phi.argmax() == 2 * 4 + 1 and phi.max() == pytest.approx(1.0)
+    model.learn(600)
+    env = GridWalk()
+    state, _ = env.reset()
+    rewards = []
+    for _ in range(30):
+        action, _ = model.predict(state, deterministic=True)
+        state, reward, *_ = env.step(int(action))
+        rewards.append(reward)
+    assert sum(rewards) >= 10  # a random walk earns ~1 in 30 steps
+
+
 def test_the_tabular_head_takes_a_user_discretisation_and_the_grid_by_default():
     """reward_head='tabular' on a 3-D Box: GridCells of cells_per_dim; or the user's cell_fn and n_cells."""
     env = gym.make(MAZE_ID)

@@ -302,3 +302,50 @@ def test_bad_counts_widths_and_budgets_are_refused_by_name(kwargs, argument):
     if kwargs.get("rbf_per_dim") == (3, 3, 3):
         with pytest.raises(ValueError, match="n_per_dim"):
             RBFGrid((0, 0), (1, 1), n_per_dim=(3, 3, 3))
+
+
+def test_a_lattice_puts_one_rbf_on_each_integer_point():
+    """On (row, col) in 0..10 x 0..3: 44 RBFs, one per point, 1 there and e^-2 at the next point (half a
+    spacing wide), in the grid's order (the first coordinate slowest)."""
+    lattice = make_feature_map("lattice", (0, 0), (10, 3))
+    assert isinstance(lattice, RBFGrid) and lattice.n_features == 44
+    points = np.array([[0.0, 0.0], [4.0, 2.0], [10.0, 3.0]])
+    phi = lattice(points)
+    np.testing.assert_array_equal(phi.argmax(axis=1), [0, 4 * 4 + 2, 43])
+    np.testing.assert_allclose(phi.max(axis=1), 1.0)
+    np.testing.assert_allclose(phi[1, 4 * 4 + 3], math.exp(-2), rtol=1e-12)  # (4, 3), one point away
+    wider = make_feature_map("lattice", (0, 0), (10, 3), rbf_overlap=1.0)
+    np.testing.assert_allclose(wider(points)[1, 4 * 4 + 3], math.exp(-0.5), rtol=1e-12)
+
+
+def test_a_lattice_beyond_the_budget_is_added_and_bad_lattices_are_refused():
+    """13 x 13 positions and 12 flags in {0, 1} (four-room's states): 13 + 13 + 12 x 2 Gaussians side by side.
+    Bounds that are not integers, or counts and widths given, are refused naming what to give."""
+    lattice = make_feature_map("lattice", (0,) * 14, (12, 12) + (1,) * 12)
+    assert isinstance(lattice, AdditiveRBF) and lattice.n_features == 50
+    assert isinstance(make_feature_map("lattice", (0, 0, 0), (4, 4, 4)), RBFGrid)  # 125 points
+    assert isinstance(make_feature_map("lattice", (0, 0, 0), (5, 4, 4)), AdditiveRBF)  # 150
+    assert isinstance(make_feature_map("lattice", (0, 0, 0), (5, 4, 4), max_features=150), RBFGrid)
+    with pytest.raises(ValueError, match=r"integer state bounds .* state_bounds"):
+        make_feature_map("lattice", (0, 0), (1.5, 2))
+    with pytest.raises(ValueError, match="leave rbf_per_dim and rbf_sigma unset"):
+        make_feature_map("lattice", (0, 0), (3, 3), rbf_per_dim=4)
+
+
+def test_auto_takes_the_lattice_on_integer_states_it_can_cover():
+    """Integer states (a Box of an integer dtype) within MAX_GRID_FEATURES lattice points get one RBF per
+    point; beyond it, or with counts or widths given, or real states, "auto" is what it is on any states."""
+    on_integers = make_feature_map("auto", (0, 0), (10, 10), integer_states=True)
+    assert isinstance(on_integers, RBFGrid) and on_integers.n_features == 121
+    np.testing.assert_array_equal(on_integers.centres, make_feature_map("lattice", (0, 0), (10, 10)).centres)
+    for kwargs in [
+        {"low": (0, 0), "high": (100, 100), "integer_states": True},  # 10,201 points
+        {"low": (0, 0), "high": (10, 10), "integer_states": True, "rbf_per_dim": 8},
+        {"low": (0, 0), "high": (10, 10), "integer_states": True, "max_features": 64},
+        {"low": (0, 0), "high": (10.5, 10), "integer_states": True},
+    ]:
+        low, high = kwargs.pop("low"), kwargs.pop("high")
+        real = {key: value for key, value in kwargs.items() if key != "integer_states"}
+        expected = make_feature_map("auto", low, high, **real)
+        got = make_feature_map("auto", low, high, **kwargs)
+        assert type(got) is type(expected) and got.n_features == expected.n_features
