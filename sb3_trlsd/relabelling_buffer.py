@@ -104,8 +104,8 @@ class RelabellingReplayBuffer(SharedDynamicsReplayBuffer):
         ``default_kernel_width(d)``, 0.04 in 2-D, the paper's 0.2 on the maze); for eq. 7 a distance between
         feature vectors (None: 0.2)
     :param similarity: ``"state"`` (eq. 6) or ``"features"`` (eq. 7)
-    :param feature_map: Phi of the feature heads: ``"rbf"``, ``"fourier"``, ``"auto"`` (see
-        ``make_feature_map``) or a ``FeatureMap``
+    :param feature_map: Phi of the feature heads: a name of ``FEATURE_MAPS`` (``"auto"``, ``"lattice"``,
+        ``"rbf"``, ...: see ``TRLSD``) or a ``FeatureMap``
     :param rbf_per_dim: RBF centres per state dimension of the grid (see ``TRLSD``)
     :param rbf_sigma: width of the features, a fraction of the state box (see ``TRLSD``)
     :param rbf_overlap: width of the RBFs in spacings of their centres (see ``TRLSD``)

@@ -124,11 +124,13 @@ class TRLSD(OffPolicyAlgorithm):
         the parameters move by less than ``fqi_tol`` of their scale (the paper's reproduction: with float32
         features, directions of theta the data does not see may never settle). A refit that reaches
         ``fqi_max_iterations`` first warns (``sb3_trlsd.fqi.FQICapWarning``)
-    :param feature_map: Phi, shared by the linear policy and the feature heads: ``"auto"`` (a grid of RBFs
-        1.5 spacings wide, counts from the box under ``max_features``, while every dimension gets at least 3
-        centres; else a row of RBFs per dimension, added), ``"paper"`` (eq. 11: the grid up to 125 centres, a
-        fifth of the spacing wide, else Fourier features), ``"rbf"``, ``"additive"``, ``"fourier"``, or a
-        ``FeatureMap`` (see ``sb3_trlsd.feature_maps.make_feature_map``)
+    :param feature_map: Phi, shared by the linear policy and the feature heads: ``"auto"`` (on a Box of
+        integers with at most 125 points, ``"lattice"``; else a grid of RBFs 1.5 spacings wide, counts from
+        the box under ``max_features``, while every dimension gets at least 3 centres; else a row of RBFs per
+        dimension, added), ``"lattice"`` (one RBF per integer point of the box, half a spacing wide: a
+        grid-world's cells), ``"paper"`` (eq. 11: the grid up to 125 centres, a fifth of the spacing wide,
+        else Fourier features), ``"rbf"``, ``"additive"``, ``"fourier"``, or a ``FeatureMap`` (see
+        ``sb3_trlsd.feature_maps.make_feature_map``)
     :param rbf_per_dim: RBF centres per state dimension: one integer, one per dimension, or ``"cube"`` (the
         same count in every dimension) / ``"box"`` (counts proportional to the box's sides, in its units)
         under ``max_features``; None: the feature map's default (``"cube"``; 5 for ``"paper"``)
