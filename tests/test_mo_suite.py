@@ -47,7 +47,8 @@ def test_weight_splits_are_disjoint_seeded_and_on_the_simplex(name):
 @pytest.mark.parametrize("name", ["deep-sea-treasure-v0", "minecart-v0", "mo-mountaincar-v0", "four-room-v0"])
 def test_scalar_reward_is_the_task_weights_times_the_reward_vector(name):
     """The env pays w_task . r_vec, with the vector in info: a mix-up of tasks or weights would show, as
-    would a reward taken from another objective; the state is a float vector in the declared Box's shape."""
+    would a reward taken from another objective; the state is a vector in the declared Box's shape, of
+    integers where the env's Box is (deep-sea treasure's and four-room's cells), else of float64."""
     family = FAMILIES[name]
     task = int(family.tasks_of("evaluation")[3])
     env = make_env(family, task)
@@ -56,7 +57,9 @@ def test_scalar_reward_is_the_task_weights_times_the_reward_vector(name):
     vectors = []
     for _ in range(200):
         obs, reward, terminated, truncated, info = env.step(int(rng.integers(env.action_space.n)))
-        assert obs["task"] == task and obs["state"].dtype == np.float64
+        expected = np.int32 if name in ("deep-sea-treasure-v0", "four-room-v0") else np.float64
+        assert obs["task"] == task and obs["state"].dtype == expected
+        assert env.observation_space["state"].contains(obs["state"])
         assert obs["state"].shape == env.observation_space["state"].shape
         assert reward == pytest.approx(float(family_weights(family)[task] @ info["vector_reward"]))
         vectors.append(info["vector_reward"])

@@ -6,8 +6,8 @@ w . r_vec, and every task shares the env's dynamics. A family here is one such e
 vectors split into three disjoint sets: the SOURCE weights, under which a random policy collects the
 source transitions, the TUNING target weights (kept apart for choosing settings), and the held-out
 EVALUATION target weights the suite scores on. ``ScalarisedTasks`` shows the env as TRLSD wants it:
-``{"state": Box(float64), "task": Discrete(n_tasks)}`` observations, tasks ordered source, tuning,
-evaluation, and the reward w_task . r_vec (the vector in ``info["vector_reward"]``).
+``{"state": Box, "task": Discrete(n_tasks)}`` observations (integers where the env's are), tasks ordered
+source, tuning, evaluation, and the reward w_task . r_vec (the vector in ``info["vector_reward"]``).
 
 The weights are drawn uniformly on the simplex (a Dirichlet(1, ..., 1) draw), so each objective's weight is
 in [0, 1] and the weights add up to 1: a component the env pays as a cost (fuel, time, damage) stays a
@@ -264,8 +264,9 @@ class ScalarisedTasks(gym.Env):
     The env's Discrete actions.
 
     ## Observation Space
-    ``{"state": Box(float64), "task": Discrete(n_tasks)}``: the env's observation as floats, in the env's
-    own Box (integer grids included), and the task being solved.
+    ``{"state": Box, "task": Discrete(n_tasks)}``: the env's observation in the env's own Box, as integers
+    where the env's Box is of integers (a grid's cells, which ``TRLSD``'s default features read), else as
+    float64, and the task being solved.
 
     ## Starting State
     The env's.
@@ -299,11 +300,11 @@ class ScalarisedTasks(gym.Env):
         self.env = env
         self.weights = weights
         self.reward_space = reward_space
+        dtype = box.dtype if np.issubdtype(box.dtype, np.integer) else np.dtype(np.float64)
+        self.state_dtype = dtype
         self.observation_space = spaces.Dict(
             {
-                "state": spaces.Box(
-                    box.low.astype(np.float64), box.high.astype(np.float64), dtype=np.float64
-                ),
+                "state": spaces.Box(box.low.astype(dtype), box.high.astype(dtype), dtype=dtype),
                 "task": spaces.Discrete(len(weights)),
             }
         )
@@ -318,7 +319,7 @@ class ScalarisedTasks(gym.Env):
         self.task = int(task)
 
     def _observation(self, state: np.ndarray) -> dict[str, Any]:
-        return {"state": np.asarray(state, dtype=np.float64), "task": self.task}
+        return {"state": np.asarray(state, dtype=self.state_dtype), "task": self.task}
 
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
