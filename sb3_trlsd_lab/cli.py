@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 import functools
 import importlib
+import json
 import multiprocessing
 import os
 import signal
@@ -295,8 +296,12 @@ def suite_command(args: argparse.Namespace) -> int:
         )
 
     status = run_in_turn("benchmark-suite", families, run_one, cache)
-    if len(done) > 1:
-        table = f"{suite_table(done)}\n\n{goal_table(done)}"
+    # The tables of every family whose JSON is in OUT, this command's and earlier ones' (run one family at a
+    # time, or rerun one): the families in the suite's order.
+    written = [out / f"mo_suite_{name}.json" for name in SUITE_FAMILIES]
+    datas = [json.loads(path.read_text()) for path in written if path.exists()]
+    if done and datas:
+        table = f"{suite_table(datas)}\n\n{goal_table(datas)}"
         (out / "mo_suite_table.md").write_text(table + "\n")
         print(table)
     return status

@@ -116,13 +116,12 @@ def test_every_method_runs_its_budget_on_the_targets_rewards(method):
     assert result.seconds >= result.online_seconds > 0
 
 
-def test_a_small_suite_cell_writes_its_csv_json_and_png(tmp_path):
-    """One family, two methods, two runs through the command line: the CSV has a row per run, the JSON the
-    aggregates with an interval around the mean, and the PNG is written."""
-    status = main(
+def small_cell(family: str, out) -> int:
+    """Two methods, two runs of a family through the command line, into ``out``."""
+    return main(
         [
             "benchmark-suite",
-            "deep-sea-treasure-v0",
+            family,
             "--runs",
             "2",
             "--workers",
@@ -135,11 +134,18 @@ def test_a_small_suite_cell_writes_its_csv_json_and_png(tmp_path):
             "--online",
             "60",
             "--out",
-            str(tmp_path),
+            str(out),
             "--no-cache",
         ]
     )
-    assert status == 0
+
+
+def test_a_small_suite_cell_writes_its_csv_json_and_png(tmp_path):
+    """One family, two methods, two runs through the command line: the CSV has a row per run, the JSON the
+    aggregates with an interval around the mean, and the PNG is written; the tables in OUT gather every
+    family run there, this command's and an earlier one's, in the suite's order."""
+    assert small_cell("mo-mountaincar-v0", tmp_path) == 0
+    assert small_cell("deep-sea-treasure-v0", tmp_path) == 0
     name = tmp_path / "mo_suite_deep-sea-treasure-v0"
     rows = name.with_suffix(".csv").read_text().strip().splitlines()
     assert len(rows) == 1 + 2 * 2 and rows[0].startswith("method,run,task")
@@ -150,6 +156,9 @@ def test_a_small_suite_cell_writes_its_csv_json_and_png(tmp_path):
         assert low <= entry["score"]["mean"] <= high and entry["runs"] == 2
     assert data["parameters"]["online_transitions"] == 60
     assert name.with_suffix(".png").stat().st_size > 0
+    table = (tmp_path / "mo_suite_table.md").read_text()
+    assert table.index("| deep-sea-treasure-v0 | TRLSD") < table.index("| mo-mountaincar-v0 | TRLSD")
+    assert table.count("| deep-sea-treasure-v0 | ") == 2  # two methods (a goal row needs DQN's runs)
 
 
 def test_run_suite_refuses_unknown_methods(tmp_path):
