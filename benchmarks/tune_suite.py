@@ -52,8 +52,14 @@ def main() -> None:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--out", type=Path, default=Path("results/tuning"))
     parser.add_argument("--cache", type=Path, default=None, help="directory of finished runs to reuse")
+    parser.add_argument(
+        "--method",
+        default="trlsd",
+        choices=["trlsd", "trlsd-reward-given"],
+        help="TRLSD, or TRLSD given the source's true rewards (the reference: which settings let it learn)",
+    )
     args = parser.parse_args()
-    methods = [("random", None)] + [("trlsd", name) for name in args.candidates]
+    methods = [("random", None)] + [(args.method, name) for name in args.candidates]
     jobs = [
         (
             (name, method, run, 0, "tuning", FAMILIES[name].n_source, FAMILIES[name].n_online),

@@ -168,12 +168,14 @@ def test_run_suite_refuses_unknown_methods(tmp_path):
 
 
 def test_settings_reach_trlsd_and_no_other_method():
-    """A candidate's settings are TRLSD's keyword arguments; given to another method they are refused."""
+    """A candidate's settings are TRLSD's keyword arguments, for TRLSD and for TRLSD given the reward; given
+    to another method they are refused."""
     family = FAMILIES["deep-sea-treasure-v0"]
     task = int(family.tasks_of("tuning")[0])
     source = collect_source(family, 300, seed=0)
-    with pytest.raises(ValueError, match="kappa"):
-        run_method("trlsd", family, task, seed=0, source=source, n_online=5, settings={"kappa": -1.0})
+    for method in ("trlsd", "trlsd-reward-given"):
+        with pytest.raises(ValueError, match="kappa"):
+            run_method(method, family, task, seed=0, source=source, n_online=5, settings={"kappa": -1.0})
     with pytest.raises(ValueError, match="settings are TRLSD's"):
         run_method("dqn", family, task, seed=0, source=source, n_online=5, settings={"kappa": 1.0})
 

@@ -49,7 +49,16 @@ from sb3_trlsd_lab.benchmarks.mo_suite.families import (
 )
 from sb3_trlsd_lab.benchmarks.mo_suite.sf_gpi import SuccessorFeaturesGPI
 
-__all__ = ["METHODS", "PeerResult", "Run", "StepRewards", "run_method", "trlsd_method"]
+__all__ = [
+    "METHODS",
+    "SETTABLE",
+    "PeerResult",
+    "Run",
+    "StepRewards",
+    "run_method",
+    "trlsd_method",
+    "trlsd_reward_given_method",
+]
 
 GAMMA = 0.9  # TRLSD's default discount, and DQN_SETTINGS': every method optimises the same return
 RELABELLING_SETTINGS: dict[str, Any] = {"gradient_steps": 4, "target_update_interval": 100}
@@ -226,29 +235,45 @@ def trlsd_method(**settings: Any) -> Run:
     return run
 
 
-def _trlsd_reward_given(
-    env: StepRewards, family: Family, source: SourceSet | None, seed: int, n_online: int
-) -> tuple[int, float]:
-    assert source is not None
-    task = scalarised_tasks(env).task
-    model = TRLSD("LinearPolicy", env, seed=seed, kappa=0.0, state_bounds=family.state_bounds)
-    data = source.transitions
-    true_rewards = source.vector_rewards @ family_weights(family)[task]
-    model.load_transitions(
-        replace(data, rewards=true_rewards, tasks=np.full_like(data.tasks, task)), keep_rewards=True
-    )
-    return _trlsd_online(model, env, seed, n_online)
+def trlsd_reward_given_method(**settings: Any) -> Run:
+    """
+    TRLSD with kappa = 0 and its defaults but ``settings``, its target head fitted before the first step on
+    the true target rewards of every source transition: the reference level (or a tuning candidate's).
+    """
+
+    def run(
+        env: StepRewards, family: Family, source: SourceSet | None, seed: int, n_online: int
+    ) -> tuple[int, float]:
+        assert source is not None
+        task = scalarised_tasks(env).task
+        model = TRLSD(
+            "LinearPolicy", env, seed=seed, state_bounds=family.state_bounds, **{"kappa": 0.0, **settings}
+        )
+        data = source.transitions
+        true_rewards = source.vector_rewards @ family_weights(family)[task]
+        model.load_transitions(
+            replace(data, rewards=true_rewards, tasks=np.full_like(data.tasks, task)), keep_rewards=True
+        )
+        return _trlsd_online(model, env, seed, n_online)
+
+    return run
 
 
 # Method -> (label, whether it needs the source, its run).
 METHODS: dict[str, tuple[str, bool, Run]] = {
     "trlsd": ("TRLSD (defaults)", True, trlsd_method()),
-    "trlsd-reward-given": ("TRLSD given the source's true rewards", True, _trlsd_reward_given),
+    "trlsd-reward-given": ("TRLSD given the source's true rewards", True, trlsd_reward_given_method()),
     "sf-gpi": ("SF + GPI (sees the reward vectors)", True, _sf_gpi),
     "dqn-relabelling": ("DQN + relabelling buffer", True, _dqn(_relabelled)),
     "dqn-zero-source": ("DQN, source with zero reward", True, _dqn(_zero_rewards)),
     "dqn": ("DQN (online only)", False, _dqn(None)),
     "random": ("random policy", False, _random),
+}
+
+# The methods that take TRLSD's settings (a tuning candidate's), and how.
+SETTABLE: dict[str, Callable[..., Run]] = {
+    "trlsd": trlsd_method,
+    "trlsd-reward-given": trlsd_reward_given_method,
 }
 
 
@@ -270,16 +295,19 @@ def run_method(
     :param seed: the run's seed (the model's, and that of the env's first reset)
     :param source: the source transitions (ignored by the methods without source)
     :param n_online: online transitions
-    :param settings: ``method="trlsd"`` only: keyword arguments of ``TRLSD`` other than its defaults
+    :param settings: ``"trlsd"`` and ``"trlsd-reward-given"`` only: keyword arguments of ``TRLSD`` other than
+        its defaults
     :return: the run's rewards and timings
     """
     if method not in METHODS:
         raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
     _, needs_source, run = METHODS[method]
     if settings:
-        if method != "trlsd":
-            raise ValueError(f"settings are TRLSD's: give them with method 'trlsd', not {method!r}")
-        run = trlsd_method(**settings)
+        if method not in SETTABLE:
+            raise ValueError(
+                f"settings are TRLSD's: give them with method 'trlsd' or 'trlsd-reward-given', not {method!r}"
+            )
+        run = SETTABLE[method](**settings)
     if needs_source and source is None:
         raise ValueError(f"method {method!r} needs the source transitions")
     start = time.perf_counter()

@@ -55,8 +55,8 @@ def suite_run(
     :param split: the weights targeted, ``"evaluation"`` (or ``"tuning"``)
     :param n_source: random source transitions
     :param n_online: online transitions
-    :param settings: ``method="trlsd"`` only: TRLSD's keyword arguments other than its defaults (a candidate
-        of the tuning protocol)
+    :param settings: ``"trlsd"`` and ``"trlsd-reward-given"`` only: TRLSD's keyword arguments other than its
+        defaults (a candidate of the tuning protocol)
     :return: the run's row: task, score, seconds, online ms per step, updates and reward curve
     """
     family = family_named(family_name)
