@@ -63,8 +63,8 @@ __all__ = [
 GAMMA = 0.9  # TRLSD's default discount, and DQN_SETTINGS': every method optimises the same return
 RELABELLING_SETTINGS: dict[str, Any] = {"gradient_steps": 4, "target_update_interval": 100}
 RELABELLING_KAPPA = 0.1
-# SF+GPI's features: Fourier features of width 0.15 of the box (TRLSD's default 5 x 5 RBFs of width 0.04 of
-# the box leave most cells of a grid world with features near 0, and LSTD's successor features with them),
+# SF+GPI's features: Fourier features of width 0.15 of the box (the paper's 5 x 5 RBFs of width 0.04 of the
+# box leave most cells of a grid world with features near 0, and LSTD's successor features with them),
 # 50 per state dimension up to 300, which keeps LSTD's system (|A| * 300)^2 quick to solve.
 SF_FEATURE_WIDTH = 0.15
 SF_FEATURES_PER_DIM = 50
