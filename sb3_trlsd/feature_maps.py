@@ -535,13 +535,13 @@ def make_feature_map(
         raise ValueError(f"feature_map must be one of {list(FEATURE_MAPS)} or a FeatureMap, got {kind!r}")
     low_t, high_t = _box(low, high)
     dims = len(low_t)
+    if max_features is not None and not _is_count(max_features):
+        raise ValueError(f"max_features must be an integer >= 1 or None, got {max_features!r}")
     if kind == "auto" and integer_states:
         kind = _auto_on_integers(low_t, high_t, max_features, rbf_per_dim, rbf_sigma)
     if kind == "lattice":
         return _lattice(low_t, high_t, rbf_per_dim, rbf_sigma, rbf_overlap, max_features, n_actions, n_tasks)
     new_defaults = kind in ("additive", "auto")
-    if max_features is not None and not _is_count(max_features):
-        raise ValueError(f"max_features must be an integer >= 1 or None, got {max_features!r}")
     budget = max_features or (ADAPTIVE_MAX_FEATURES if new_defaults else MAX_GRID_FEATURES)
     if rbf_overlap is not None:
         _check_overlap(kind, rbf_overlap, rbf_sigma)

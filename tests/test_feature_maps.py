@@ -330,6 +330,9 @@ def test_a_lattice_beyond_the_budget_is_added_and_bad_lattices_are_refused():
         make_feature_map("lattice", (0, 0), (1.5, 2))
     with pytest.raises(ValueError, match="leave rbf_per_dim and rbf_sigma unset"):
         make_feature_map("lattice", (0, 0), (3, 3), rbf_per_dim=4)
+    for kind, integers in [("lattice", False), ("auto", True)]:
+        with pytest.raises(ValueError, match="max_features must be an integer"):
+            make_feature_map(kind, (0, 0), (3, 3), max_features=0.5, integer_states=integers)
 
 
 def test_auto_takes_the_lattice_on_integer_states_it_can_cover():
