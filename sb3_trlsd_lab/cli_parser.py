@@ -212,8 +212,9 @@ def build_parser() -> argparse.ArgumentParser:
         description="Each MO-Gymnasium env is a family of tasks sharing its dynamics, one per weight "
         "vector w of its reward vector (reward w . r_vec). Every method learns the same held-out target "
         "weights with the same seeds, after the same random source transitions collected under other "
-        "weights, for the family's online budget; the score is the mean scalar reward per online step. Needs "
-        "sb3-trlsd[benchmarks].",
+        "weights, for the family's online budget; the score is the mean scalar reward per online step. "
+        "Writes mo_suite_<family>.csv, .png and .json, and mo_suite_table.md: the tables of every family "
+        "whose JSON is in --out, this command's and earlier ones'. Needs sb3-trlsd[benchmarks].",
     )
     suite.add_argument(
         "family", choices=[*SUITE_FAMILIES, "all"], help="which family (all: those that can run here)"
