@@ -607,6 +607,13 @@ def _fourier_features(
     return RandomFourierFeatures(low, high, m, default_kernel_width(dims) if sigma is None else sigma, seed)
 
 
+def _lattice_counts(low: tuple[float, ...], high: tuple[float, ...]) -> tuple[int, ...] | None:
+    """The integer points of [low, high] along each dimension, or None when a bound is not an integer."""
+    if not all(float(v).is_integer() for v in low + high):
+        return None
+    return tuple(int(h - lo) + 1 for lo, h in zip(low, high, strict=True))
+
+
 def _auto_on_integers(
     low: tuple[float, ...],
     high: tuple[float, ...],
@@ -618,11 +625,10 @@ def _auto_on_integers(
     ``"auto"`` on integer states: ``"lattice"`` for integer bounds with at most the budget of lattice
     points and no counts or widths given, else ``"auto"`` as on any states.
     """
-    integer_bounds = all(float(v).is_integer() for v in low + high)
-    if rbf_per_dim is not None or rbf_sigma is not None or not integer_bounds:
+    counts = _lattice_counts(low, high)
+    if rbf_per_dim is not None or rbf_sigma is not None or counts is None:
         return "auto"
-    points = math.prod(int(h - lo) + 1 for lo, h in zip(low, high, strict=True))
-    return "lattice" if points <= (max_features or MAX_GRID_FEATURES) else "auto"
+    return "lattice" if math.prod(counts) <= (max_features or MAX_GRID_FEATURES) else "auto"
 
 
 def _lattice(
@@ -641,12 +647,12 @@ def _lattice(
             "feature_map='lattice' takes its centres (one per integer point of the state box) and widths "
             "(rbf_overlap of the unit spacing) from the box: leave rbf_per_dim and rbf_sigma unset"
         )
-    if not (all(float(v).is_integer() for v in low + high)):
+    counts = _lattice_counts(low, high)
+    if counts is None:
         raise ValueError(
             f"feature_map='lattice' needs integer state bounds (the lattice's first and last points), got "
             f"low {list(low)} and high {list(high)}: give state_bounds=(low, high) with integers"
         )
-    counts = tuple(int(h - lo) + 1 for lo, h in zip(low, high, strict=True))
     grid = math.prod(counts) <= (max_features or MAX_GRID_FEATURES)
     n_features = math.prod(counts) if grid else sum(counts)
     check_feature_memory(n_features, n_actions, n_tasks, f"feature_map='lattice' on {counts} lattice points")
