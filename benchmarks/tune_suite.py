@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from sb3_trlsd_lab.benchmarks.mo_suite.families import FAMILIES, available
+from sb3_trlsd_lab.benchmarks.mo_suite.peers import SETTABLE
 from sb3_trlsd_lab.benchmarks.mo_suite.suite import suite_run
 from sb3_trlsd_lab.execution.jobs import run_jobs
 
@@ -55,7 +56,7 @@ def main() -> None:
     parser.add_argument(
         "--method",
         default="trlsd",
-        choices=["trlsd", "trlsd-reward-given"],
+        choices=list(SETTABLE),
         help="TRLSD, or TRLSD given the source's true rewards (the reference: which settings let it learn)",
     )
     args = parser.parse_args()
