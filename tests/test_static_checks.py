@@ -2,6 +2,7 @@
 (the lint rules of ``pyproject.toml``) and ``mypy`` (its ``[tool.mypy]``: library, envs and lab)."""
 
 import importlib.util
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -12,9 +13,15 @@ ROOT = Path(__file__).parents[1]
 
 
 def run_tool(module: str, *args: str) -> subprocess.CompletedProcess:
-    """``python -m module args`` at the repository's root, or a skip when the tool is not installed."""
+    """
+    ``python -m module args`` at the repository's root. A tool that is not installed is a skip on a
+    developer's machine, and a failure in CI (``CI`` set), whose set-up installs the dev extra.
+    """
     if importlib.util.find_spec(module) is None:
-        pytest.skip(f"{module} is not installed (it comes with the dev extra: pip install -e '.[dev]')")
+        missing = f"{module} is not installed (it comes with the dev extra: pip install -e '.[dev]')"
+        if os.environ.get("CI"):
+            pytest.fail(missing)
+        pytest.skip(missing)
     return subprocess.run(
         [sys.executable, "-m", module, *args], cwd=ROOT, capture_output=True, text=True, timeout=600
     )
