@@ -279,6 +279,15 @@ def test_bad_hyperparameters_are_refused_by_name(kwargs, argument):
         TRLSD("LinearPolicy", gym.make(MAZE_ID), **kwargs)
 
 
+def test_one_policy_kwargs_dict_builds_several_models():
+    """TRLSD keeps a copy of ``policy_kwargs`` (it adds the features to it): the caller's dict is left as it
+    was and builds a second model."""
+    layers = {"net_arch": [8]}
+    models = [TRLSD("MlpPolicy", gym.make(MAZE_ID), policy_kwargs=layers, seed=seed) for seed in (0, 1)]
+    assert layers == {"net_arch": [8]}
+    assert all(model.policy_kwargs["net_arch"] == [8] for model in models)
+
+
 def test_bad_policy_and_spaces_are_refused():
     """An unknown policy, a continuous action space or an observation without a state Box is refused."""
     with pytest.raises(ValueError, match="policy must be one of"):
