@@ -18,7 +18,7 @@ from sb3_trlsd_lab.benchmarks.mo_suite.families import (
     reward_bound,
     weight_split,
 )
-from sb3_trlsd_lab.benchmarks.mo_suite.peers import METHODS, run_method
+from sb3_trlsd_lab.benchmarks.mo_suite.peers import METHODS, SETTABLE, run_method
 from sb3_trlsd_lab.benchmarks.mo_suite.suite import goal_table, paired_gain, run_suite
 from sb3_trlsd_lab.cli import main
 
@@ -168,16 +168,32 @@ def test_run_suite_refuses_unknown_methods(tmp_path):
 
 
 def test_settings_reach_trlsd_and_no_other_method():
-    """A candidate's settings are TRLSD's keyword arguments, for TRLSD and for TRLSD given the reward; given
-    to another method they are refused."""
+    """A candidate's settings are TRLSD's keyword arguments, for each TRLSD method (either policy, without or
+    with the true reward); given to another method they are refused."""
     family = FAMILIES["deep-sea-treasure-v0"]
     task = int(family.tasks_of("tuning")[0])
     source = collect_source(family, 300, seed=0)
-    for method in ("trlsd", "trlsd-reward-given"):
+    assert set(SETTABLE) == {"trlsd", "trlsd-reward-given", "trlsd-mlp", "trlsd-mlp-reward-given"}
+    for method in SETTABLE:
         with pytest.raises(ValueError, match="kappa"):
             run_method(method, family, task, seed=0, source=source, n_online=5, settings={"kappa": -1.0})
     with pytest.raises(ValueError, match="settings are TRLSD's"):
         run_method("dqn", family, task, seed=0, source=source, n_online=5, settings={"kappa": 1.0})
+
+
+@pytest.mark.parametrize("method", ["trlsd-mlp", "trlsd-mlp-reward-given"])
+def test_the_mlp_methods_run_trlsd_with_its_network_q(method):
+    """The MLP methods are TRLSD with ``MlpPolicy``: a network's layers are theirs to set, and the linear
+    methods, whose Q has none, refuse them."""
+    family = FAMILIES["deep-sea-treasure-v0"]
+    task = int(family.tasks_of("tuning")[0])
+    source = collect_source(family, 300, seed=0)
+    layers = {"policy_kwargs": {"net_arch": [8]}}
+    result = run_method(method, family, task, seed=0, source=source, n_online=5, settings=layers)
+    assert result.rewards.shape == (5,) and result.updates >= 1
+    with pytest.raises(TypeError, match="net_arch"):
+        linear = method.replace("-mlp", "")
+        run_method(linear, family, task, seed=0, source=source, n_online=5, settings=layers)
 
 
 def test_the_goal_table_says_which_goal_holds_from_the_paired_differences():
@@ -190,11 +206,11 @@ def test_the_goal_table_says_which_goal_holds_from_the_paired_differences():
     gain, versus = paired_gain(rows["trlsd"], rows["random"]), paired_gain(rows["trlsd"], rows["dqn"])
     assert gain["mean"] == pytest.approx(1.1) and versus["mean"] == pytest.approx(0.05)
     data = {
-        "parameters": {"family": "f"},
+        "parameters": {"family": "f", "methods": {"trlsd": "TRLSD"}},
         "results": {"trlsd": {"gain_over_random": gain}},
-        "trlsd_minus_dqn": versus,
-        "trlsd_fraction_of_reward_given": 0.65,
+        "goals": {"trlsd": {"minus_dqn": versus, "fraction_of_reward_given": 0.65}},
     }
     row = goal_table([data]).splitlines()[-1]
-    # 1.1 ± 0.058 above random; 0.05 ± 0.029 ahead of DQN is within 2 SE; 65% is short of 70%.
-    assert row.split(" | ")[2:] == ["yes", "+0.050 ± 0.029", "**no**", "65%", "**no** |"]
+    # 1.1 ± 0.041 above random; 0.05 ± 0.029 ahead of DQN is within 2 SE; 65% is short of 70%.
+    cells = ["TRLSD", "+1.100 ± 0.041", "yes", "+0.050 ± 0.029", "**no**", "65%", "**no** |"]
+    assert row.split(" | ")[1:] == cells

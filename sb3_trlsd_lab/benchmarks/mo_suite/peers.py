@@ -20,10 +20,14 @@ online step (``StepRewards``), whatever loop drives the env.
   transition as samples of its reward head, with kappa = 0: what TRLSD reaches when the reward is as well
   known as its head can know it (the same features, reward timing and Fitted-Q), the level TRLSD is
   measured against.
+- ``trlsd-mlp`` and ``trlsd-mlp-reward-given``: the same two with ``TRLSD("MlpPolicy", ...)``, TRLSD's small
+  network Q fitted by Fitted-Q on the same relabelled rows: the other Q-class a user can pick, measured on the
+  same runs.
 """
 
 from __future__ import annotations
 
+import functools
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, replace
@@ -218,27 +222,31 @@ def _trlsd_online(model: TRLSD, env: StepRewards, seed: int, n_online: int) -> t
     return sum(model.policy_updates.values()) - updates_before, time.perf_counter() - start
 
 
-def trlsd_method(**settings: Any) -> Run:
+def trlsd_method(policy: str = "LinearPolicy", **settings: Any) -> Run:
     """
     TRLSD with its defaults but ``settings`` (keyword arguments of ``TRLSD``), the family's state bounds and
     the source loaded with its rewards discarded (a suite's method, or a candidate of the tuning protocol).
+
+    :param policy: TRLSD's policy, ``"LinearPolicy"`` or ``"MlpPolicy"``
     """
 
     def run(
         env: StepRewards, family: Family, source: SourceSet | None, seed: int, n_online: int
     ) -> tuple[int, float]:
         assert source is not None
-        model = TRLSD("LinearPolicy", env, seed=seed, state_bounds=family.state_bounds, **settings)
+        model = TRLSD(policy, env, seed=seed, state_bounds=family.state_bounds, **settings)
         model.load_transitions(source.transitions, keep_rewards=False)
         return _trlsd_online(model, env, seed, n_online)
 
     return run
 
 
-def trlsd_reward_given_method(**settings: Any) -> Run:
+def trlsd_reward_given_method(policy: str = "LinearPolicy", **settings: Any) -> Run:
     """
     TRLSD with kappa = 0 and its defaults but ``settings``, its target head fitted before the first step on
     the true target rewards of every source transition: the reference level (or a tuning candidate's).
+
+    :param policy: TRLSD's policy, ``"LinearPolicy"`` or ``"MlpPolicy"``
     """
 
     def run(
@@ -246,9 +254,7 @@ def trlsd_reward_given_method(**settings: Any) -> Run:
     ) -> tuple[int, float]:
         assert source is not None
         task = scalarised_tasks(env).task
-        model = TRLSD(
-            "LinearPolicy", env, seed=seed, state_bounds=family.state_bounds, **{"kappa": 0.0, **settings}
-        )
+        model = TRLSD(policy, env, seed=seed, state_bounds=family.state_bounds, **{"kappa": 0.0, **settings})
         data = source.transitions
         true_rewards = source.vector_rewards @ family_weights(family)[task]
         model.load_transitions(
@@ -263,6 +269,12 @@ def trlsd_reward_given_method(**settings: Any) -> Run:
 METHODS: dict[str, tuple[str, bool, Run]] = {
     "trlsd": ("TRLSD (defaults)", True, trlsd_method()),
     "trlsd-reward-given": ("TRLSD given the source's true rewards", True, trlsd_reward_given_method()),
+    "trlsd-mlp": ("TRLSD, MlpPolicy (defaults)", True, trlsd_method("MlpPolicy")),
+    "trlsd-mlp-reward-given": (
+        "TRLSD, MlpPolicy, given the source's true rewards",
+        True,
+        trlsd_reward_given_method("MlpPolicy"),
+    ),
     "sf-gpi": ("SF + GPI (sees the reward vectors)", True, _sf_gpi),
     "dqn-relabelling": ("DQN + relabelling buffer", True, _dqn(_relabelled)),
     "dqn-zero-source": ("DQN, source with zero reward", True, _dqn(_zero_rewards)),
@@ -274,6 +286,8 @@ METHODS: dict[str, tuple[str, bool, Run]] = {
 SETTABLE: dict[str, Callable[..., Run]] = {
     "trlsd": trlsd_method,
     "trlsd-reward-given": trlsd_reward_given_method,
+    "trlsd-mlp": functools.partial(trlsd_method, "MlpPolicy"),
+    "trlsd-mlp-reward-given": functools.partial(trlsd_reward_given_method, "MlpPolicy"),
 }
 
 
@@ -295,8 +309,7 @@ def run_method(
     :param seed: the run's seed (the model's, and that of the env's first reset)
     :param source: the source transitions (ignored by the methods without source)
     :param n_online: online transitions
-    :param settings: ``"trlsd"`` and ``"trlsd-reward-given"`` only: keyword arguments of ``TRLSD`` other than
-        its defaults
+    :param settings: the methods of ``SETTABLE`` only: keyword arguments of ``TRLSD`` other than its defaults
     :return: the run's rewards and timings
     """
     if method not in METHODS:
@@ -305,7 +318,7 @@ def run_method(
     if settings:
         if method not in SETTABLE:
             raise ValueError(
-                f"settings are TRLSD's: give them with method 'trlsd' or 'trlsd-reward-given', not {method!r}"
+                f"settings are TRLSD's: give them with one of {', '.join(SETTABLE)}, not {method!r}"
             )
         run = SETTABLE[method](**settings)
     if needs_source and source is None:

@@ -31,7 +31,9 @@ __all__ = ["DEFAULT_RUNS", "SOURCE_SEED", "goal_table", "run_suite", "suite_run"
 
 DEFAULT_RUNS = 20
 SOURCE_SEED = 10_000
-REFERENCE = "trlsd-reward-given"  # the level TRLSD is measured against, above the random policy's
+# Each TRLSD method -> the level it is measured against, above the random policy's: the same agent given the
+# source's true rewards.
+REFERENCES = {"trlsd": "trlsd-reward-given", "trlsd-mlp": "trlsd-mlp-reward-given"}
 
 
 def suite_run(
@@ -55,7 +57,7 @@ def suite_run(
     :param split: the weights targeted, ``"evaluation"`` (or ``"tuning"``)
     :param n_source: random source transitions
     :param n_online: online transitions
-    :param settings: ``"trlsd"`` and ``"trlsd-reward-given"`` only: TRLSD's keyword arguments other than its
+    :param settings: the methods of ``peers.SETTABLE`` only: TRLSD's keyword arguments other than its
         defaults (a candidate of the tuning protocol)
     :return: the run's row: task, score, seconds, online ms per step, updates and reward curve
     """
@@ -112,18 +114,38 @@ def paired_gain(rows: Sequence[Mapping[str, Any]], floor: Sequence[Mapping[str, 
     return {"mean": float(mean), "se": float(se)}
 
 
-def reference_fraction(results: Mapping[str, Mapping[str, Any]]) -> float | None:
+def reference_fraction(results: Mapping[str, Mapping[str, Any]], method: str = "trlsd") -> float | None:
     """
     (TRLSD - random) / (reward given - random): how much of the reward-given level's gain over a random
-    policy TRLSD reaches (None without the three methods, or no gain to share).
+    policy a TRLSD method reaches (None without the three methods, or no gain to share).
+
+    :param method: a key of ``REFERENCES``
     """
-    if not {"trlsd", REFERENCE, "random"} <= set(results):
+    reference = REFERENCES[method]
+    if not {method, reference, "random"} <= set(results):
         return None
     floor = results["random"]["score"]["mean"]
-    gain = results[REFERENCE]["score"]["mean"] - floor
+    gain = results[reference]["score"]["mean"] - floor
     if gain <= 0:
         return None
-    return (results["trlsd"]["score"]["mean"] - floor) / gain
+    return (results[method]["score"]["mean"] - floor) / gain
+
+
+def goals(
+    results: Mapping[str, Mapping[str, Any]], by_method: Mapping[str, Sequence[Mapping[str, Any]]]
+) -> dict[str, dict[str, Any]]:
+    """
+    Each TRLSD method of the run against its goals: its score minus DQN's on the same runs, and its
+    fraction of the reward-given level (the methods of ``REFERENCES`` that ran beside DQN).
+    """
+    return {
+        method: {
+            "minus_dqn": paired_gain(by_method[method], by_method["dqn"]),
+            "fraction_of_reward_given": reference_fraction(results, method),
+        }
+        for method in REFERENCES
+        if {method, "dqn"} <= set(by_method)
+    }
 
 
 def write_rows(path: Path, rows: Mapping[str, Sequence[Mapping[str, Any]]]) -> None:
@@ -237,10 +259,7 @@ def run_suite(
         seed,
         time.perf_counter() - started,
         results=results,
-        trlsd_fraction_of_reward_given=reference_fraction(results),
-        trlsd_minus_dqn=paired_gain(by_method["trlsd"], by_method["dqn"])
-        if {"trlsd", "dqn"} <= set(by_method)
-        else None,
+        goals=goals(results, by_method),
     )
     write_json(out / f"{name}.json", data)
     return data
@@ -273,27 +292,29 @@ def suite_table(datas: Sequence[Mapping[str, Any]]) -> str:
 
 def goal_table(datas: Sequence[Mapping[str, Any]]) -> str:
     """
-    The Markdown table of TRLSD against its goals, one row per family: its gain over random (paired), its
-    score minus DQN's (paired) in standard errors, and its fraction of the reward-given level's gain over
-    random; each with whether it holds (above random by 2 SE, ahead of DQN by 2 SE, at least 70%).
+    The Markdown table of the TRLSD methods against their goals, one row per family and method: its gain
+    over random (paired), its score minus DQN's (paired) in standard errors, and its fraction of the
+    reward-given level's gain over random; each with whether it holds (above random by 2 SE, ahead of DQN by
+    2 SE, at least 70%).
     """
     lines = [
-        "| family | TRLSD gain over random | above random | TRLSD - DQN | ahead of DQN by 2 SE "
+        "| family | method | gain over random | above random | minus DQN | ahead of DQN by 2 SE "
         "| fraction of reward-given | >= 70% |",
-        "|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for data in datas:
-        gain = data["results"].get("trlsd", {}).get("gain_over_random")
-        versus, fraction = data.get("trlsd_minus_dqn"), data.get("trlsd_fraction_of_reward_given")
-        if gain is None or versus is None:
-            continue
-        lines.append(
-            f"| {data['parameters']['family']} | {gain['mean']:+.3f} ± {gain['se']:.3f} | "
-            f"{_yes(gain['mean'] > 2 * gain['se'])} | {versus['mean']:+.3f} ± {versus['se']:.3f} | "
-            f"{_yes(versus['mean'] > 2 * versus['se'])} | "
-            f"{'n/a' if fraction is None else f'{fraction:.0%}'} | "
-            f"{'n/a' if fraction is None else _yes(fraction >= 0.7)} |"
-        )
+        for method, goal in data.get("goals", {}).items():
+            gain = data["results"][method].get("gain_over_random")
+            if gain is None:
+                continue
+            versus, fraction = goal["minus_dqn"], goal["fraction_of_reward_given"]
+            lines.append(
+                f"| {data['parameters']['family']} | {data['parameters']['methods'][method]} | "
+                f"{gain['mean']:+.3f} ± {gain['se']:.3f} | {_yes(gain['mean'] > 2 * gain['se'])} | "
+                f"{versus['mean']:+.3f} ± {versus['se']:.3f} | {_yes(versus['mean'] > 2 * versus['se'])} | "
+                f"{'n/a' if fraction is None else f'{fraction:.0%}'} | "
+                f"{'n/a' if fraction is None else _yes(fraction >= 0.7)} |"
+            )
     return "\n".join(lines)
 
 
