@@ -51,7 +51,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sb3_trlsd.feature_maps import FeatureMap, make_feature_map
+from sb3_trlsd.feature_choice import make_feature_map
+from sb3_trlsd.feature_maps import FeatureMap
 from sb3_trlsd.fqi import LinearFQISolver
 
 GAMMA = 0.95

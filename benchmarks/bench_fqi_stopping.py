@@ -28,7 +28,8 @@ import warnings
 
 import numpy as np
 
-from sb3_trlsd.feature_maps import RBFGrid, make_feature_map
+from sb3_trlsd.feature_choice import make_feature_map
+from sb3_trlsd.feature_maps import RBFGrid
 from sb3_trlsd.fqi import FQICapWarning, LinearFQISolver, return_bounds
 
 GAMMA, TOL, CAP = 0.9, 1e-4, 500

@@ -24,13 +24,8 @@ import numpy as np
 from gymnasium import spaces
 
 from sb3_trlsd.engine import TIE_BREAKS
-from sb3_trlsd.feature_maps import (
-    FEATURE_MAPS,
-    GRID_SHAPES,
-    FeatureMap,
-    default_kernel_width,
-    make_feature_map,
-)
+from sb3_trlsd.feature_choice import FEATURE_MAPS, GRID_SHAPES, default_kernel_width, make_feature_map
+from sb3_trlsd.feature_maps import FeatureMap
 from sb3_trlsd.fqi import DEFAULT_TOL, STOP_RULES
 from sb3_trlsd.observations import state_space_of, task_count_of
 from sb3_trlsd.reward_heads import (

@@ -130,7 +130,7 @@ class TRLSD(OffPolicyAlgorithm):
         dimension, added), ``"lattice"`` (one RBF per integer point of the box, half a spacing wide: a
         grid-world's cells), ``"paper"`` (eq. 11: the grid up to 125 centres, a fifth of the spacing wide,
         else Fourier features), ``"rbf"``, ``"additive"``, ``"fourier"``, or a ``FeatureMap`` (see
-        ``sb3_trlsd.feature_maps.make_feature_map``)
+        ``sb3_trlsd.feature_choice.make_feature_map``)
     :param rbf_per_dim: RBF centres per state dimension: one integer, one per dimension, or ``"cube"`` (the
         same count in every dimension) / ``"box"`` (counts proportional to the box's sides, in its units)
         under ``max_features``; None: the feature map's default (``"cube"``; 5 for ``"paper"``)

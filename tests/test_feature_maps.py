@@ -6,20 +6,18 @@ import pickle
 import numpy as np
 import pytest
 
-from sb3_trlsd.feature_maps import (
+from sb3_trlsd.feature_choice import (
     ADAPTIVE_MAX_FEATURES,
     ADDITIVE_PER_DIM,
     MEMORY_BOUND_BYTES,
     PAPER_OVERLAP,
-    AdditiveRBF,
-    RandomFourierFeatures,
-    RBFGrid,
     check_feature_memory,
     default_kernel_width,
     grid_counts,
     make_feature_map,
     spacing_widths,
 )
+from sb3_trlsd.feature_maps import AdditiveRBF, RandomFourierFeatures, RBFGrid
 
 
 def unit_states(n, dims, seed=0):

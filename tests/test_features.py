@@ -5,7 +5,8 @@ import pickle
 import numpy as np
 import pytest
 
-from sb3_trlsd.feature_maps import RBFGrid, grid_centres, make_feature_map
+from sb3_trlsd.feature_choice import make_feature_map
+from sb3_trlsd.feature_maps import RBFGrid, grid_centres
 from sb3_trlsd.similarity import gaussian_similarity, squared_distances
 
 MAZE_GRID = RBFGrid(low=(0, 0), high=(5, 5), n_per_dim=5, sigma=0.04)  # the paper's width 0.2

@@ -38,7 +38,7 @@ import numpy as np
 from stable_baselines3 import DQN
 
 from sb3_trlsd import RelabellingReplayBuffer
-from sb3_trlsd.feature_maps import make_feature_map
+from sb3_trlsd.feature_choice import make_feature_map
 from sb3_trlsd.observations import check_action_space, state_space_of
 from sb3_trlsd.trlsd import TRLSD
 from sb3_trlsd_lab.benchmarks.baselines import DQN_SETTINGS, fill_replay_buffer, one_torch_thread
