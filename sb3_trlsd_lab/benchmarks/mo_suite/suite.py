@@ -161,7 +161,7 @@ def write_rows(path: Path, rows: Mapping[str, Sequence[Mapping[str, Any]]]) -> N
 
 def plot_bars(path: Path, title: str, results: Mapping[str, Mapping[str, Any]]) -> None:
     """A bar per method: its mean score, with its 95% bootstrap interval."""
-    figure, (ax,) = new_figure(1, width=7.0, height=1.4 + 0.45 * len(results))
+    figure, (ax,) = new_figure(1, width=8.0, height=1.4 + 0.45 * len(results))
     labels = [METHODS[method][0] for method in results]
     means = np.array([entry["score"]["mean"] for entry in results.values()])
     intervals = np.array([entry["ci95"] for entry in results.values()])
@@ -177,7 +177,7 @@ def plot_bars(path: Path, title: str, results: Mapping[str, Mapping[str, Any]]) 
     )
     ax.set_yticks(positions, labels)
     ax.axvline(0.0, color="grey", linewidth=0.5)
-    ax.set_xlabel("mean scalar reward per online step (95% bootstrap interval)")
+    ax.set_xlabel("mean reward per online step (95% bootstrap interval)")
     save_figure(figure, path, title)
 
 
