@@ -265,29 +265,29 @@ def trlsd_reward_given_method(policy: str = "LinearPolicy", **settings: Any) -> 
     return run
 
 
-# Method -> (label, whether it needs the source, its run).
-METHODS: dict[str, tuple[str, bool, Run]] = {
-    "trlsd": ("TRLSD (defaults)", True, trlsd_method()),
-    "trlsd-reward-given": ("TRLSD given the source's true rewards", True, trlsd_reward_given_method()),
-    "trlsd-mlp": ("TRLSD, MlpPolicy (defaults)", True, trlsd_method("MlpPolicy")),
-    "trlsd-mlp-reward-given": (
-        "TRLSD, MlpPolicy, given the source's true rewards",
-        True,
-        trlsd_reward_given_method("MlpPolicy"),
-    ),
-    "sf-gpi": ("SF + GPI (sees the reward vectors)", True, _sf_gpi),
-    "dqn-relabelling": ("DQN + relabelling buffer", True, _dqn(_relabelled)),
-    "dqn-zero-source": ("DQN, source with zero reward", True, _dqn(_zero_rewards)),
-    "dqn": ("DQN (online only)", False, _dqn(None)),
-    "random": ("random policy", False, _random),
-}
-
 # The methods that take TRLSD's settings (a tuning candidate's), and how.
 SETTABLE: dict[str, Callable[..., Run]] = {
     "trlsd": trlsd_method,
     "trlsd-reward-given": trlsd_reward_given_method,
     "trlsd-mlp": functools.partial(trlsd_method, "MlpPolicy"),
     "trlsd-mlp-reward-given": functools.partial(trlsd_reward_given_method, "MlpPolicy"),
+}
+
+# Method -> (label, whether it needs the source, its run).
+METHODS: dict[str, tuple[str, bool, Run]] = {
+    "trlsd": ("TRLSD (defaults)", True, SETTABLE["trlsd"]()),
+    "trlsd-reward-given": ("TRLSD given the source's true rewards", True, SETTABLE["trlsd-reward-given"]()),
+    "trlsd-mlp": ("TRLSD, MlpPolicy (defaults)", True, SETTABLE["trlsd-mlp"]()),
+    "trlsd-mlp-reward-given": (
+        "TRLSD, MlpPolicy, given the source's true rewards",
+        True,
+        SETTABLE["trlsd-mlp-reward-given"](),
+    ),
+    "sf-gpi": ("SF + GPI (sees the reward vectors)", True, _sf_gpi),
+    "dqn-relabelling": ("DQN + relabelling buffer", True, _dqn(_relabelled)),
+    "dqn-zero-source": ("DQN, source with zero reward", True, _dqn(_zero_rewards)),
+    "dqn": ("DQN (online only)", False, _dqn(None)),
+    "random": ("random policy", False, _random),
 }
 
 

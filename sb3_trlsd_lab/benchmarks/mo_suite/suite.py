@@ -114,7 +114,7 @@ def paired_gain(rows: Sequence[Mapping[str, Any]], floor: Sequence[Mapping[str, 
     return {"mean": float(mean), "se": float(se)}
 
 
-def reference_fraction(results: Mapping[str, Mapping[str, Any]], method: str = "trlsd") -> float | None:
+def reference_fraction(results: Mapping[str, Mapping[str, Any]], method: str) -> float | None:
     """
     (TRLSD - random) / (reward given - random): how much of the reward-given level's gain over a random
     policy a TRLSD method reaches (None without the three methods, or no gain to share).
