@@ -225,29 +225,54 @@ def test_an_interrupted_ray_reproduction_says_what_it_kept(cluster, tmp_path, si
     assert none_left, "tasks of the command still run on the cluster"
 
 
+def writer_of(fifo: Path) -> int | None:
+    """A write end of the FIFO ``fifo`` if some process has it open to read (or waits to), else None."""
+    try:
+        return os.open(fifo, os.O_WRONLY | os.O_NONBLOCK)
+    except OSError:  # ENXIO: no reader
+        return None
+
+
+def readers_of(fifo: Path) -> list[int]:
+    """The processes other than this one that hold ``fifo`` open."""
+    found = []
+    for fd_dir in Path("/proc").glob("[0-9]*/fd"):
+        pid = int(fd_dir.parent.name)
+        if pid == os.getpid():
+            continue
+        with suppress(OSError):  # the process ended, or is not ours to read
+            if any(os.readlink(fd) == str(fifo) for fd in fd_dir.iterdir()):
+                found.append(pid)
+    return found
+
+
 @needs_ray
 @needs_proc
 def test_an_interrupt_cancels_the_tasks_on_the_cluster(driver, tmp_path):
     """
     A driver that lives on (a notebook's Ctrl-C) must not leave its tasks running on the cluster, nor wait
-    for them: RunsInterrupted, and no task of it left. Its tasks read a FIFO that no one writes to: they end
-    only when cancelled, so neither claim depends on how fast runs are or how loaded the machine is.
+    for them: RunsInterrupted, and no task of it left. Its tasks read a FIFO whose write end the test holds
+    and never writes to: they end only when cancelled, so neither claim depends on how fast runs are or how
+    loaded the machine is. That a task runs, and that none is left, is read from the FIFO itself (a reader
+    opened it; no process holds it), not from the names Ray gives its worker processes.
     """
     fifo = tmp_path / "never-written"
     os.mkfifo(fifo)
     jobs = [((fifo,), {}) for _ in range(6)]
     returned = threading.Event()  # run_jobs has returned or raised
     released: list[str] = []  # why the tasks were let go by the test, which only a failing run_jobs needs
+    writers: list[int] = []  # the write end, held open so that the tasks' reads block instead of ending
 
     def interrupt_once_a_task_runs() -> None:
         deadline = time.monotonic() + HANG_SECONDS
-        while not running_tasks(driver):
+        while (writer := writer_of(fifo)) is None:
             if returned.wait(0.05):
                 return
             if time.monotonic() > deadline:
                 released.append(f"no task of run_jobs ran within {HANG_SECONDS} s")
                 release(fifo)
                 return
+        writers.append(writer)
         _thread.interrupt_main()
         if not returned.wait(HANG_SECONDS):  # run_jobs waits for its tasks, which would never end
             released.append("run_jobs waited for its tasks instead of cancelling them")
@@ -260,9 +285,11 @@ def test_an_interrupt_cancels_the_tasks_on_the_cluster(driver, tmp_path):
         returned.set()
         assert not released, released[0]
         assert (interrupted.value.kept, interrupted.value.total) == (0, len(jobs))
-        assert wait_for(lambda: not running_tasks(driver), HANG_SECONDS), "the cancelled tasks still run"
+        assert wait_for(lambda: not readers_of(fifo), HANG_SECONDS), "the cancelled tasks still run"
     finally:
         returned.set()
+        for writer in writers:
+            os.close(writer)
         release(fifo)  # whatever happened, no task of this test holds the cluster's CPUs after it
 
 
