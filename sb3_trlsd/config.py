@@ -36,7 +36,8 @@ from sb3_trlsd.reward_heads import (
     RewardHead,
     make_reward_head,
 )
-from sb3_trlsd.task_learner import FIRST_FIT_RULES, REWARD_TIMINGS, TaskLearner
+from sb3_trlsd.reward_timing import REWARD_TIMINGS, TransitionFeatures, input_box
+from sb3_trlsd.task_learner import FIRST_FIT_RULES, TaskLearner
 
 __all__ = ["FEATURE_HEAD_NAMES", "HEAD_NAMES", "LearnerBuilder", "TRLSDConfig", "check_discount", "head_seed"]
 
@@ -144,9 +145,10 @@ class TRLSDConfig:
     :param fourier_features: the number of Fourier features (None: the feature map's default)
     :param state_bounds: ``(low, high)`` of the states for an unbounded Box (None: the Box's, finite)
     :param reward_head_kwargs: extra arguments of the named reward heads
-    :param reward_timing: the state of a transition its reward belongs to: ``"start_state"`` (the paper's
-        R_tau(s)), ``"next_state"`` (the state it arrives at: Gymnasium's convention) or ``"auto"`` (the env's
-        ``metadata["reward_timing"]`` where it declares one, else ``"next_state"``)
+    :param reward_timing: what of a transition its reward belongs to: ``"start_state"`` (the paper's
+        R_tau(s)), ``"next_state"`` (the state it arrives at: Gymnasium's convention), ``"transition"`` (the
+        pair (s, s'): a reward for a change of state) or ``"auto"`` (the env's ``metadata["reward_timing"]``
+        where it declares one, else ``"next_state"``)
     """
 
     reward_head: str | RewardHead = "ridge"
@@ -415,7 +417,7 @@ class LearnerBuilder:
     :param low: the state box's lower corner, (d,)
     :param high: its upper corner, (d,)
     :param features: Phi, shared by the linear Q and the feature heads (None when neither uses one)
-    :param reward_timing: the state of a transition its reward belongs to, one of ``REWARD_TIMINGS``
+    :param reward_timing: what of a transition its reward belongs to, one of ``REWARD_TIMINGS``
     :param seed: the run's seed (of the Thompson heads' draws, unless ``reward_head_kwargs`` gives theirs)
     """
 
@@ -425,6 +427,13 @@ class LearnerBuilder:
     features: FeatureMap | None
     reward_timing: str
     seed: int | None = None
+
+    def __post_init__(self) -> None:
+        if self.config.reward_head == "known" and self.reward_timing == "transition":
+            raise ValueError(
+                "the 'known' reward_head takes the expected reward of one state, reward_fn(states, task): "
+                "use reward_timing='start_state' or 'next_state' with it, not 'transition'"
+            )
 
     def new_reward_head(
         self, task: int, reward_fn: RewardFn | None = None, seed: int | None = None
@@ -452,18 +461,32 @@ class LearnerBuilder:
             return make_reward_head("known", task=task, reward_fn=reward_fn, **kwargs)
         if config.reward_head == "thompson":
             kwargs.setdefault("seed", head_seed(self.seed if seed is None else seed, task))
+        features = self.features
+        if self.reward_timing == "transition" and features is not None:
+            features = TransitionFeatures(features)
+        low, high = input_box(self.low, self.high, self.reward_timing)
         return make_reward_head(
             config.reward_head,
             task=task,
-            features=self.features,
-            state_space=spaces.Box(self.low, self.high, dtype=np.float64),
+            features=features,
+            state_space=spaces.Box(low, high, dtype=np.float64),
             kappa=config.kappa,
-            sigma=config.similarity_width(self.low, self.high)  # type: ignore[arg-type]
+            sigma=self.similarity_width()  # type: ignore[arg-type]
             if config.reward_head in SIMILARITY_HEAD_NAMES
             else 0.2,
             similarity=config.similarity,
             **kwargs,
         )
+
+    def similarity_width(self) -> float | np.ndarray:
+        """
+        The similarity width of the heads (``TRLSDConfig.similarity_width``) on their inputs: a state's
+        widths, twice side by side for the ``"transition"`` timing's pairs of states.
+        """
+        width = self.config.similarity_width(self.low, self.high)
+        if self.reward_timing == "transition" and np.ndim(width):
+            return np.concatenate([width, width])
+        return width
 
     def new_task_learner(
         self, task: int, reward_fn: RewardFn | None = None, seed: int | None = None

@@ -25,6 +25,7 @@ from sb3_trlsd.data import Transitions
 from sb3_trlsd.feature_maps import FeatureMap
 from sb3_trlsd.observations import split_observation
 from sb3_trlsd.reward_heads import RewardFn, RewardHead
+from sb3_trlsd.reward_timing import rewarded_inputs
 
 __all__ = ["RelabellingReplayBuffer", "dqn_q_values"]
 
@@ -37,11 +38,11 @@ class RelabellingReplayBuffer(SharedDynamicsReplayBuffer):
 
     Each task of the observations has a reward head (``"ridge"``: eq. 8-9 on the feature map Phi;
     ``"tabular"``: eq. 10 on a grid of cells), which learns from every online transition of its task as
-    ``add`` stores it: the reward observed for the transition, at the state it belongs to
-    (``reward_timing``: the next state by default, the start state s of the paper's R_tau(s)). A sampled
-    source row is served to one of the tasks seen online (drawn uniformly when there are several: its
-    observation's ``"task"`` becomes that task) with the reward R~_tau = R^_tau + CI_tau of that task's head
-    as it is now (``kappa=0``: the plain estimate R^). Online rows keep their observed reward by default,
+    ``add`` stores it: the reward observed for the transition, at what of it the reward belongs to
+    (``reward_timing``: the next state by default, the start state s of the paper's R_tau(s), or the pair).
+    A sampled source row is served to one of the tasks seen online (drawn uniformly when there are several:
+    its observation's ``"task"`` becomes that task) with the reward R~_tau = R^_tau + CI_tau of that task's
+    head as it is now (``kappa=0``: the plain estimate R^). Online rows keep their observed reward by default,
     as HER keeps its real transitions: the head only stands in for rewards nobody observed.
     ``relabel_online_rows=True`` relabels them with their own task's head, as TRLSD's FQI sees its whole
     buffer.
@@ -116,9 +117,10 @@ class RelabellingReplayBuffer(SharedDynamicsReplayBuffer):
         ``n_cells``, ``cells_per_dim`` for the tabular ones)
     :param reward_fn: ``reward_fn(states, task) -> (n,)``, the expected reward of the ``"known"`` head
     :param seed: seed of the Fourier features and of the ``"thompson"`` heads' draws
-    :param reward_timing: the state of a transition its reward belongs to, which the heads learn and relabel
-        at: ``"next_state"`` (the state it arrives at: Gymnasium's convention) or ``"start_state"`` (the
-        paper's R_tau(s), and this package's envs'); ``"auto"`` is ``"next_state"`` (a buffer sees no env)
+    :param reward_timing: what of a transition its reward belongs to, which the heads learn and relabel
+        at: ``"next_state"`` (the state it arrives at: Gymnasium's convention), ``"start_state"`` (the
+        paper's R_tau(s), and this package's envs') or ``"transition"`` (the pair (s, s')); ``"auto"`` is
+        ``"next_state"`` (a buffer sees no env)
     :param relabel_online_rows: relabel the online rows too (False: they keep their observed reward)
     """
 
@@ -197,12 +199,12 @@ class RelabellingReplayBuffer(SharedDynamicsReplayBuffer):
     ) -> None:
         """Store one step of the envs (validated first), and teach each task's head its rewards."""
         super().add(obs, next_obs, action, reward, done, infos)
-        states, tasks = split_observation(
-            next_obs if self.reward_timing == "next_state" else obs, self.obs_shape[0]
-        )
+        states, tasks = split_observation(obs, self.obs_shape[0])
+        next_states, _ = split_observation(next_obs, self.obs_shape[0])
+        inputs = rewarded_inputs(states, next_states, self.reward_timing)
         rewards = np.asarray(reward, dtype=np.float64).reshape(-1)
         for task in np.unique(tasks):
-            self.reward_heads[task].update(states[tasks == task], rewards[tasks == task])
+            self.reward_heads[task].update(inputs[tasks == task], rewards[tasks == task])
 
     def load_transitions(self, transitions: Transitions) -> None:
         """
@@ -252,7 +254,7 @@ class RelabellingReplayBuffer(SharedDynamicsReplayBuffer):
         relabelled = np.ones_like(source) if self.relabel_online_rows else source
         for task in np.unique(tasks[relabelled]):
             rows = relabelled & (tasks == task)
-            rewarded = next_states[rows] if self.reward_timing == "next_state" else states[rows]
+            rewarded = rewarded_inputs(states[rows], next_states[rows], self.reward_timing)
             rewards[rows] = self.reward_heads[task].optimistic(rewarded)  # eq. 5: R~ = R^ + CI
         # Only terminations stop the bootstrap, not the resets after a truncation.
         dones = self.dones[batch_inds, env_indices] * (1 - self.timeouts[batch_inds, env_indices])

@@ -16,16 +16,14 @@ import numpy as np
 
 from sb3_trlsd.buffers import BufferCursor, SharedDynamicsReplayBuffer
 from sb3_trlsd.reward_heads import RewardHead, RewardTracker
+from sb3_trlsd.reward_timing import REWARD_TIMINGS, rewarded_inputs
 
-__all__ = ["FIRST_FIT_RULES", "REWARD_TIMINGS", "TaskLearner"]
+__all__ = ["FIRST_FIT_RULES", "TaskLearner"]
 
 # When a task's Q-function is first fitted (the paper does not say): before its first action, on R~ of no
 # sample (the optimism of an empty head); or once its first sample (and reward) is in, acting before that
 # with the unfitted Q (every action ties: the policy's argmax takes the first).
 FIRST_FIT_RULES = ("first_step", "first_sample")
-# Which state of a transition its reward belongs to: the state it starts from (the paper's R_tau(s), and this
-# package's own envs), or the state it arrives at (Gymnasium's convention: a step pays for where it led).
-REWARD_TIMINGS = ("start_state", "next_state")
 
 
 class TaskLearner:
@@ -38,8 +36,8 @@ class TaskLearner:
         divided by this since its last refit (> 1)
     :param first_fit: when the task is first fitted, one of ``FIRST_FIT_RULES``: ``"first_step"`` (before
         its first action, see ``fit_before_acting``) or ``"first_sample"`` (due once its first sample is in)
-    :param reward_timing: the state of a transition its reward belongs to, one of ``REWARD_TIMINGS``: the head
-        learns, and relabels the buffer, at that state
+    :param reward_timing: what of a transition its reward belongs to, one of ``REWARD_TIMINGS``: the head
+        learns, and relabels the buffer, at that input (``rewarded_inputs``)
     :param refit_growth: once the trigger has fired, the refit waits until the task's samples have grown by
         this fraction since its last refit (at least one new sample); 0 refits as soon as it fires (the
         paper). Refits are then at most about 1 / refit_growth + ln(n) / ln(1 + refit_growth) over n samples,
@@ -102,8 +100,8 @@ class TaskLearner:
 
     def observe(self, state: np.ndarray, next_state: np.ndarray, reward: float, n_rows: int) -> None:
         """
-        Add one online sample of the task to its reward head (the reward at the transition's start or next
-        state, as ``reward_timing`` says), and mark the task due if the trigger fires:
+        Add one online sample of the task to its reward head (the reward at the transition's start state,
+        next state or both, as ``reward_timing`` says), and mark the task due if the trigger fires:
         section 3 refits once the CI at an encountered state has been divided by ``update_ratio`` since the
         last refit. The ratio is taken on the kappa-free uncertainty, so that kappa = 0 triggers the same way.
         A head without uncertainty (the known reward) has nothing to divide: it refits when the shared buffer
@@ -117,8 +115,10 @@ class TaskLearner:
         :param reward: the reward observed for it
         :param n_rows: the rows of the shared buffer now
         """
-        rewarded = next_state if self.reward_timing == "next_state" else state
-        state = np.asarray(rewarded, dtype=np.float64).reshape(1, -1)
+        state = self.inputs(
+            np.asarray(state, dtype=np.float64).reshape(1, -1),
+            np.asarray(next_state, dtype=np.float64).reshape(1, -1),
+        )
         self.head.update(state, np.array([reward], dtype=np.float64))
         self.samples += 1
         if not self.fitted:
@@ -134,9 +134,20 @@ class TaskLearner:
         new_samples = self.samples - self.samples_at_refit
         self.due = self.triggered and new_samples >= max(1.0, self.refit_growth * self.samples_at_refit)
 
+    def inputs(self, states: np.ndarray, next_states: np.ndarray) -> np.ndarray:
+        """
+        What the task's head sees of transitions from ``states`` to ``next_states`` (``rewarded_inputs`` at
+        its ``reward_timing``); ``inputs(states, states)`` is the reward of staying at each state.
+
+        :param states: start states (n, d)
+        :param next_states: next states (n, d)
+        :return: (n, d), or (n, 2d) for the ``"transition"`` timing
+        """
+        return rewarded_inputs(states, next_states, self.reward_timing)
+
     def relabelled_rewards(self, buffer: SharedDynamicsReplayBuffer) -> np.ndarray:
         """
-        R~_tau at the rewarded state (``reward_timing``) of every transition of the buffer, oldest first (Psi
+        R~_tau at the rewarded input (``reward_timing``) of every transition of the buffer, oldest first (Psi
         of section 2); between two calls only the new rows and the head's new samples are folded in.
 
         :param buffer: the shared buffer
@@ -145,7 +156,7 @@ class TaskLearner:
         if self._relabelling is None:
             self._cursor = BufferCursor()
         rows, restart = buffer.read_new(self._cursor)
-        states = rows.next_states if self.reward_timing == "next_state" else rows.states
+        states = self.inputs(rows.states, rows.next_states)
         if restart or self._relabelling is None:
             self._relabelling = self.head.tracker(states)
         else:

@@ -146,9 +146,11 @@ class TRLSD(OffPolicyAlgorithm):
     :param reward_head_kwargs: extra arguments of the named reward heads (e.g. ``w_floor``, ``r_max``;
         ``ridge`` of the linear-posterior heads, ``seed`` of ``"thompson"``, ``reward_range`` of
         ``"bernstein"``)
-    :param reward_timing: the state of a transition its reward belongs to, which the reward heads learn and
+    :param reward_timing: what of a transition its reward belongs to, which the reward heads learn and
         relabel at: ``"start_state"`` (the paper's R_tau(s)), ``"next_state"`` (the state it arrives at:
-        Gymnasium's convention, e.g. a goal paid on arrival) or ``"auto"`` (the env's
+        Gymnasium's convention, e.g. a goal paid on arrival), ``"transition"`` (the pair (s, s'), whose
+        features are Phi(s) and Phi(s') side by side: a reward paid the first time a place is reached, say)
+        or ``"auto"`` (the env's
         ``metadata["reward_timing"]`` where it declares one, as this package's envs do, else
         ``"next_state"``)
     :param source_transitions: source set loaded (rewards discarded) at the first ``learn``: a number of
@@ -407,10 +409,11 @@ class TRLSD(OffPolicyAlgorithm):
         self._state_box.check(np.concatenate([transitions.states, transitions.next_states]), stacklevel=2)
         self.replay_buffer.add_transitions(transitions, keep_rewards=keep_rewards)
         if keep_rewards:
-            rewarded = transitions.next_states if self.reward_timing == "next_state" else transitions.states
             for task in np.unique(transitions.tasks):
                 rows = transitions.tasks == task
-                self.task_learner(task).head.update(rewarded[rows], transitions.rewards[rows])
+                learner = self.task_learner(task)
+                inputs = learner.inputs(transitions.states[rows], transitions.next_states[rows])
+                learner.head.update(inputs, transitions.rewards[rows])
         # New dynamics data: every fitted task is refitted at the next training round.
         for learner in self.task_learners.values():
             learner.due = learner.due or learner.fitted
@@ -534,15 +537,16 @@ class TRLSD(OffPolicyAlgorithm):
         self.logger.record("train/fqi_iterations", result.iterations)
         self.logger.record("train/bellman_residual", result.bellman_residual)
         if len(rewards) and self.logger.output_formats:
-            states = self.replay_buffer.transitions().states
-            self.logger.record("reward/ci_mean", float(np.mean(rewards - learner.head.estimate(states))))
+            stored = self.replay_buffer.transitions()
+            estimates = learner.head.estimate(learner.inputs(stored.states, stored.next_states))
+            self.logger.record("reward/ci_mean", float(np.mean(rewards - estimates)))
         every = self.log_picture_every
         due = every and (learner.refits == 1 or learner.refits % every == 0)
         if due and has_tensorboard(self.logger):
             view = TaskView(
                 task=learner.task,
-                estimate=learner.head.estimate,
-                bonus=learner.head.bonus,
+                estimate=lambda states: learner.head.estimate(learner.inputs(states, states)),
+                bonus=lambda states: learner.head.bonus(learner.inputs(states, states)),
                 q_values=lambda states: self.policy.q_values(states, learner.task),
                 trajectory=self.replay_buffer.recent_states(learner.task, 50),
             )
