@@ -69,10 +69,9 @@ def fill_online(model: TRLSD, env: Corridor, steps: int = 300) -> None:
         obs = env.reset()[0] if terminated or truncated else next_obs
 
 
-@pytest.mark.parametrize("timing", ["start_state", "next_state", "transition"])
-def test_each_timing_relabels_the_buffer_as_by_hand(timing):
-    env = Corridor()
-    model = TRLSD(
+def tabular_model(env: Corridor, timing: str) -> TRLSD:
+    """TRLSD whose head is the per-cell mean of the rewards (kappa = 0) at the timing's inputs."""
+    return TRLSD(
         "LinearPolicy",
         env,
         reward_head="tabular",
@@ -81,6 +80,12 @@ def test_each_timing_relabels_the_buffer_as_by_hand(timing):
         reward_timing=timing,
         seed=0,
     )
+
+
+@pytest.mark.parametrize("timing", ["start_state", "next_state", "transition"])
+def test_each_timing_relabels_the_buffer_as_by_hand(timing):
+    env = Corridor()
+    model = tabular_model(env, timing)
     fill_online(model, env)
     data = model.replay_buffer.transitions()
     by_hand = {"start_state": data.states, "next_state": data.next_states}
@@ -97,15 +102,7 @@ def test_a_reward_for_entering_is_learnt_only_by_the_transition_timing():
     """Paid on entering the last fifth, not for staying in it: the next state alone cannot tell the two."""
     for timing in ("next_state", "transition"):
         env = EntryCorridor()
-        model = TRLSD(
-            "LinearPolicy",
-            env,
-            reward_head="tabular",
-            kappa=0.0,
-            reward_head_kwargs={"cells_per_dim": CELLS},
-            reward_timing=timing,
-            seed=0,
-        )
+        model = tabular_model(env, timing)
         fill_online(model, env, steps=600)
         data = model.replay_buffer.transitions()
         entered = (data.states[:, 0] < 0.8) & (data.next_states[:, 0] >= 0.8)
