@@ -44,6 +44,10 @@ CANDIDATES: dict[str, dict[str, Any]] = {
     # Posterior sampling of the ridge weights (a random deviation per refit, not a bonus), at two scales.
     "thompson,kappa=0.1": {"reward_head": "thompson", "kappa": 0.1},
     "thompson,kappa=0.01": {"reward_head": "thompson", "kappa": 0.01},
+    # Epsilon-greedy over each task's first steps: none (the greedy policy), or over other spans.
+    "exploration_initial_eps=0": {"exploration_initial_eps": 0.0},
+    "exploration_steps=100": {"exploration_steps": 100},
+    "exploration_steps=500": {"exploration_steps": 500},
 }
 
 

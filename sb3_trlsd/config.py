@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 from gymnasium import spaces
 
-from sb3_trlsd.engine import TIE_BREAKS
+from sb3_trlsd.engine import TIE_BREAKS, Exploration
 from sb3_trlsd.feature_choice import FEATURE_MAPS, GRID_SHAPES, default_kernel_width, make_feature_map
 from sb3_trlsd.feature_maps import FeatureMap
 from sb3_trlsd.fqi import DEFAULT_TOL, STOP_RULES
@@ -69,6 +69,10 @@ def _finite(name: str, value: object) -> float:
         raise ValueError(f"{name} must be a finite number, got {value!r}")
     _require(math.isfinite(value), name, "a finite number", value)
     return float(value)
+
+
+def _probability(name: str, value: object) -> None:
+    _require(0 <= _finite(name, value) <= 1, name, "in [0, 1] (a probability)", value)
 
 
 def _integer(name: str, value: object, minimum: int, none_allowed: bool = False) -> None:
@@ -129,6 +133,9 @@ class TRLSDConfig:
         fraction since its last refit (>= 0; 0: at once, the paper)
     :param tie_break: the greedy action among equal Q-values while learning, one of ``TIE_BREAKS``:
         ``"random"`` (seeded by the run's seed) or ``"first"``
+    :param exploration_initial_eps: the epsilon-greedy rate at a task's first online step, in [0, 1]
+    :param exploration_final_eps: the rate once a task has ``exploration_steps`` online samples, in [0, 1]
+    :param exploration_steps: a task's online samples over which the rate falls linearly (>= 0)
     :param fqi_max_iterations: cap on Fitted-Q iterations per refit (None: the Q-function's own default)
     :param fqi_tol: Fitted-Q's relative stopping tolerance (see ``fqi_stop``; None: ``FQI_TOLS`` of the rule)
     :param fqi_stop: Fitted-Q's stopping rule, one of ``STOP_RULES``: ``"targets"`` (the Bellman targets move
@@ -159,6 +166,9 @@ class TRLSDConfig:
     first_fit: str = "first_step"
     refit_growth: float = 0.1
     tie_break: str = "random"
+    exploration_initial_eps: float = 1.0
+    exploration_final_eps: float = 0.0
+    exploration_steps: int = 250
     fqi_max_iterations: int | None = None
     fqi_tol: float | None = None
     fqi_stop: str = "targets"
@@ -204,6 +214,9 @@ class TRLSDConfig:
         )
         if self.tie_break not in TIE_BREAKS:
             raise ValueError(f"tie_break must be one of {list(TIE_BREAKS)}, got {self.tie_break!r}")
+        _probability("exploration_initial_eps", self.exploration_initial_eps)
+        _probability("exploration_final_eps", self.exploration_final_eps)
+        _integer("exploration_steps", self.exploration_steps, 0)
         if self.fqi_stop not in STOP_RULES:
             raise ValueError(f"fqi_stop must be one of {list(STOP_RULES)}, got {self.fqi_stop!r}")
         if self.fqi_tol is None:
@@ -256,6 +269,12 @@ class TRLSDConfig:
         return self.reward_head if isinstance(self.reward_head, str) else type(self.reward_head).__name__
 
     @property
+    def exploration(self) -> Exploration:
+        """The epsilon-greedy behaviour of these settings."""
+        initial, final = float(self.exploration_initial_eps), float(self.exploration_final_eps)
+        return Exploration(initial, final, int(self.exploration_steps))
+
+    @property
     def fqi_tolerance(self) -> float:
         """``fqi_tol`` as the fits take it: the rule's ``FQI_TOLS`` entry when it was given as None."""
         assert self.fqi_tol is not None, "resolved when the settings are made"
@@ -272,6 +291,9 @@ class TRLSDConfig:
             "first_fit": self.first_fit,
             "refit_growth": self.refit_growth,
             "tie_break": self.tie_break,
+            "exploration_initial_eps": self.exploration_initial_eps,
+            "exploration_final_eps": self.exploration_final_eps,
+            "exploration_steps": self.exploration_steps,
             "fqi_max_iterations": self.fqi_max_iterations,
             "fqi_tol": self.fqi_tol,
             "fqi_stop": self.fqi_stop,

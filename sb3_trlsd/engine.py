@@ -5,7 +5,9 @@ relabelling), and the Q-functions of every run and task (``q_functions.py``). Wh
 and calls, for a batch of transitions, each with its run:
 
 - ``act(runs, states, tasks)``: a task's Q is fitted before its first action (under
-  ``first_fit="first_step"``), then the greedy action argmax_a Q_run,tau(s, a) (eq. 3);
+  ``first_fit="first_step"``), then the greedy action argmax_a Q_run,tau(s, a) (eq. 3), replaced by a
+  uniformly random one with the task's exploration rate (``Exploration``: epsilon-greedy over a task's first
+  online steps; none in the paper);
 - ``observe(runs, ...)``: each transition goes to its run's buffer (at once, or held back until the run's
   next refit) and its reward to its task's learner, whose trigger may fire (section 3);
 - ``refit_due()``: the tasks whose trigger fired are refitted by Fitted-Q Iteration on their run's buffer
@@ -30,7 +32,17 @@ from sb3_trlsd.fqi import FQIResult, targets_rule_cap
 from sb3_trlsd.q_functions import QFunctions
 from sb3_trlsd.task_learner import TaskLearner
 
-__all__ = ["TIE_BREAKS", "Engine", "NewLearner", "RefitHook", "Run", "greedy_actions", "tie_rng"]
+__all__ = [
+    "TIE_BREAKS",
+    "Engine",
+    "Exploration",
+    "NewLearner",
+    "RefitHook",
+    "Run",
+    "explore_rng",
+    "greedy_actions",
+    "tie_rng",
+]
 
 # How the greedy action of equal Q-values is taken while learning: the first such action, or one of them at
 # random (a Q that is 0 everywhere, before any reward was seen with kappa = 0, then acts at random instead of
@@ -52,6 +64,49 @@ def tie_rng(seed: int | None) -> np.random.Generator:
     if seed is None:
         return np.random.default_rng()
     return np.random.default_rng(np.random.SeedSequence([int(seed) % 2**64, 5]))
+
+
+def explore_rng(seed: int | None) -> np.random.Generator:
+    """
+    The generator of a run's exploratory actions, derived from the run's seed (fresh entropy without one).
+
+    :param seed: the run's seed (a model's ``seed``)
+    """
+    if seed is None:
+        return np.random.default_rng()
+    return np.random.default_rng(np.random.SeedSequence([int(seed) % 2**64, 7]))
+
+
+@dataclass(frozen=True)
+class Exploration:
+    """
+    Epsilon-greedy behaviour while learning, per task: over a task's first ``steps`` online samples the
+    rate falls linearly from ``initial_eps`` to ``final_eps``, and stays at ``final_eps`` after; a step
+    takes a uniformly random action with that probability, else the greedy one.
+
+    :param initial_eps: the rate at a task's first online step, in [0, 1]
+    :param final_eps: the rate from its ``steps``-th on, in [0, 1]
+    :param steps: the online samples of a task over which the rate falls (0: ``final_eps`` from the start)
+    """
+
+    initial_eps: float = 0.0
+    final_eps: float = 0.0
+    steps: int = 0
+
+    def rate(self, samples: int) -> float:
+        """
+        The exploration rate of a task with ``samples`` online samples so far.
+
+        :param samples: the task's online samples (>= 0)
+        """
+        if samples >= self.steps:
+            return self.final_eps
+        return self.initial_eps + (self.final_eps - self.initial_eps) * samples / self.steps
+
+    @property
+    def explores(self) -> bool:
+        """Whether any step may be exploratory."""
+        return self.initial_eps > 0 or self.final_eps > 0
 
 
 def greedy_actions(
@@ -89,12 +144,15 @@ class Run:
         engine writes a batch of them at once), as (state, action, reward, next state, task, truncated,
         terminated)
     :param ties: the generator of its greedy actions' random tie-breaks (None: the first tied action)
+    :param explore: the generator of its exploratory actions (None: none, whatever the engine's
+        ``Exploration``)
     """
 
     buffer: SharedDynamicsReplayBuffer
     learners: dict[int, TaskLearner] = field(default_factory=dict)
     pending: list[tuple] = field(default_factory=list)
     ties: np.random.Generator | None = None
+    explore: np.random.Generator | None = None
 
     @property
     def n_rows(self) -> int:
@@ -128,6 +186,7 @@ class Engine:
     :param tol: relative stopping tolerance of the Fitted-Q iterations
     :param stop_rule: the Fitted-Q iterations' stopping rule, one of ``sb3_trlsd.fqi.STOP_RULES``
     :param on_refit: called after each refit (e.g. to log it)
+    :param exploration: the epsilon-greedy behaviour of ``act`` (default: none, the greedy policy)
     """
 
     def __init__(
@@ -140,8 +199,10 @@ class Engine:
         tol: float,
         stop_rule: str,
         on_refit: RefitHook | None = None,
+        exploration: Exploration | None = None,
     ):
         self.runs = list(runs)
+        self.exploration = exploration or Exploration()
         self.q_functions = q_functions
         self.new_learner = new_learner
         self.gamma = gamma
@@ -186,9 +247,32 @@ class Engine:
         q_values = self.q_functions.q_values(runs, states, tasks)
         return greedy_actions(q_values, [self.runs[run].ties for run in runs])
 
+    def behave(self, runs: np.ndarray, states: np.ndarray, tasks: np.ndarray) -> np.ndarray:
+        """
+        The actions TRLSD takes once the tasks are fitted: ``greedy``, each replaced by a uniformly random
+        action with its task's exploration rate (``Exploration.rate`` of the task's online samples), drawn
+        with its run's ``explore`` generator: one draw for each state whose rate is above 0, in order, and a
+        second for each that explores.
+
+        :param runs: the run of each state, (n,)
+        :param states: (n, d)
+        :param tasks: the task of each state, (n,)
+        :return: actions (n,)
+        """
+        q_values = self.q_functions.q_values(runs, states, tasks)
+        actions = greedy_actions(q_values, [self.runs[run].ties for run in runs])
+        if not self.exploration.explores:
+            return actions
+        for i, (run, task) in enumerate(zip(runs, tasks, strict=True)):
+            rng = self.runs[run].explore
+            rate = self.exploration.rate(self.learner(run, task).samples)
+            if rng is not None and rate > 0 and rng.random() < rate:
+                actions[i] = rng.integers(q_values.shape[1])
+        return actions
+
     def act(self, runs: np.ndarray, states: np.ndarray, tasks: np.ndarray) -> np.ndarray:
         """
-        The actions TRLSD takes: the tasks that must be are fitted first (``fit_first``), then ``greedy``.
+        The actions TRLSD takes: the tasks that must be are fitted first (``fit_first``), then ``behave``.
 
         :param runs: the run of each state, (n,)
         :param states: (n, d)
@@ -196,7 +280,7 @@ class Engine:
         :return: actions (n,)
         """
         self.fit_first(runs, tasks)
-        return self.greedy(runs, states, tasks)
+        return self.behave(runs, states, tasks)
 
     def observe(
         self,

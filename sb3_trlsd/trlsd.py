@@ -28,7 +28,7 @@ from sb3_trlsd.buffers import SharedDynamicsReplayBuffer
 from sb3_trlsd.callbacks import TaskView, has_tensorboard, log_hyperparameters, log_task_picture
 from sb3_trlsd.config import LearnerBuilder, TRLSDConfig, check_discount
 from sb3_trlsd.data import Transitions
-from sb3_trlsd.engine import Engine, Run, tie_rng
+from sb3_trlsd.engine import Engine, Run, explore_rng, tie_rng
 from sb3_trlsd.feature_maps import FeatureMap
 from sb3_trlsd.fqi import FQIResult
 from sb3_trlsd.observations import StateBoxMonitor, check_action_space, split_observation, state_space_of
@@ -114,6 +114,16 @@ class TRLSD(OffPolicyAlgorithm):
         (a Q that is 0 everywhere, as before any reward is seen with kappa = 0, then explores at random
         instead of repeating action 0), or ``"first"`` (the paper's reproduction). ``predict`` with
         ``deterministic=True`` takes the first
+    :param exploration_initial_eps: epsilon-greedy while learning (``learn``, ``act``; ``predict`` stays
+        greedy), per task: the probability of a uniformly random action at a task's first online step. A
+        greedy policy on a Q that no reward supports yet is deterministic all the same and can walk into a
+        wall and stay there; random steps spread a new task's first samples instead. 0 with
+        ``exploration_final_eps=0`` is the paper's greedy policy (its reproduction)
+    :param exploration_final_eps: the probability once the task has ``exploration_steps`` online samples
+    :param exploration_steps: a task's online samples over which the probability falls linearly from
+        ``exploration_initial_eps`` to ``exploration_final_eps``. The schedule counts each task's own samples,
+        not the ``total_timesteps`` of ``learn`` (SB3's DQN's ``exploration_fraction``): TRLSD meets new
+        tasks as it goes, and ``act`` knows no budget
     :param fqi_max_iterations: cap on Fitted-Q iterations per refit (None: the policy's own default, 500
         linear and 200 MLP, and under ``fqi_stop="targets"`` at most ``sb3_trlsd.fqi.targets_rule_cap(gamma,
         fqi_tol)``, three times what a gamma-contraction needs: 198 at gamma 0.9)
@@ -201,6 +211,9 @@ class TRLSD(OffPolicyAlgorithm):
         first_fit: str = "first_step",
         refit_growth: float = 0.1,
         tie_break: str = "random",
+        exploration_initial_eps: float = 1.0,
+        exploration_final_eps: float = 0.0,
+        exploration_steps: int = 250,
         fqi_max_iterations: int | None = None,
         fqi_tol: float | None = None,
         fqi_stop: str = "targets",
@@ -243,6 +256,9 @@ class TRLSD(OffPolicyAlgorithm):
             first_fit=first_fit,
             refit_growth=refit_growth,
             tie_break=tie_break,
+            exploration_initial_eps=exploration_initial_eps,
+            exploration_final_eps=exploration_final_eps,
+            exploration_steps=exploration_steps,
             fqi_max_iterations=fqi_max_iterations,
             fqi_tol=fqi_tol,
             fqi_stop=fqi_stop,
@@ -344,9 +360,11 @@ class TRLSD(OffPolicyAlgorithm):
         """The engine of this model's one run: its shared buffer, task learners and policy."""
         if not hasattr(self, "_ties"):  # a loaded model draws on from where it was saved
             self._ties = tie_rng(self.seed)
+        if not hasattr(self, "_explore"):
+            self._explore = explore_rng(self.seed)
         ties = self._ties if self.config.tie_break == "random" else None
         return Engine(
-            [Run(self.replay_buffer, self.task_learners, ties=ties)],
+            [Run(self.replay_buffer, self.task_learners, ties=ties, explore=self._explore)],
             PolicyQFunctions(self.policy),
             lambda run, task: self.new_task_learner(task),
             gamma=self.gamma,
@@ -354,6 +372,7 @@ class TRLSD(OffPolicyAlgorithm):
             tol=self.config.fqi_tolerance,
             stop_rule=self.config.fqi_stop,
             on_refit=self._log_refit,
+            exploration=self.config.exploration,
         )
 
     # ------------------------------------------------------------- task learners
@@ -422,13 +441,15 @@ class TRLSD(OffPolicyAlgorithm):
     def _sample_action(
         self, learning_starts: int, action_noise: ActionNoise | None = None, n_envs: int = 1
     ) -> tuple[np.ndarray, np.ndarray]:
-        # A task's Q is fitted at its first step, before the policy acts on it (unless ``first_fit`` waits).
-        if self.num_timesteps >= learning_starts and self._last_obs is not None:
-            _, tasks = split_observation(self._last_obs, self.replay_buffer.obs_shape[0])
-            self.engine.fit_first(np.zeros(len(tasks), dtype=np.int64), tasks)
-            # Acting before the first fit is first_fit's rule: predict does not warn about it.
-            self._warned_unfitted.update(int(task) for task in tasks if not self.task_learner(task).fitted)
-        return super()._sample_action(learning_starts, action_noise, n_envs)
+        # Before learning_starts, SB3's uniformly random actions; then the engine's: a task's Q is fitted at
+        # its first step (unless ``first_fit`` waits), the greedy action, and the task's exploration.
+        if self.num_timesteps < learning_starts or self._last_obs is None:
+            return super()._sample_action(learning_starts, action_noise, n_envs)
+        obs, state_dim = self._last_obs, self.replay_buffer.obs_shape[0]
+        states, tasks = split_observation(obs, state_dim, require_finite=True)
+        self._state_box.check(states, stacklevel=4)
+        actions = self.engine.act(np.zeros(len(tasks), dtype=np.int64), states, tasks)
+        return actions, actions
 
     def _on_step(self) -> None:
         """Feed the transitions just stored (one row per env) to the engine: their tasks' learners."""

@@ -100,12 +100,21 @@ def test_learn_act_and_a_batch_take_the_same_actions_and_refits(method):
 
 
 def test_a_batch_on_another_family_steps_its_envs_one_by_one_with_the_same_result():
-    """The four rooms through a generic env batch: the actions and refits of each run driven alone."""
+    """
+    The four rooms through a generic env batch, with the library's defaults (epsilon-greedy over each task's
+    first steps, ties at random): the actions and refits of each run driven alone, by ``act`` and by
+    ``learn``, exploratory steps included.
+    """
     seeds, n_steps = (1, 2), 120
     envs = [gym.make(FOUR_ROOMS_ID, task=task) for task in (0, 3)]
     lockstep = Lockstep(TRLSD("LinearPolicy", envs[0], seed=seeds[0]), env_batch(envs), 2, None, n_steps)
     for env, seed, record in zip(envs, seeds, lockstep.run(seeds), strict=True):
-        alone_env = gym.make(FOUR_ROOMS_ID, task=env.unwrapped.task)
-        actions, refits = by_act(TRLSD("LinearPolicy", alone_env, seed=seed), alone_env, n_steps, seed)
-        np.testing.assert_array_equal(record.actions, actions)
-        assert record.refit_steps == refits
+        for caller in ("learn", "act"):
+            alone_env = gym.make(FOUR_ROOMS_ID, task=env.unwrapped.task)
+            model = TRLSD("LinearPolicy", alone_env, seed=seed)
+            assert model.config.exploration.explores
+            actions, refits = (
+                by_learn(model, n_steps) if caller == "learn" else by_act(model, alone_env, n_steps, seed)
+            )
+            np.testing.assert_array_equal(record.actions, actions)
+            assert record.refit_steps == refits

@@ -18,7 +18,7 @@ import numpy as np
 
 from sb3_trlsd.buffers import SharedDynamicsReplayBuffer
 from sb3_trlsd.data import Transitions
-from sb3_trlsd.engine import Engine, Run, tie_rng
+from sb3_trlsd.engine import Engine, Run, explore_rng, tie_rng
 from sb3_trlsd.policies import LinearPolicy
 from sb3_trlsd.q_functions import LinearRunsQFunctions
 from sb3_trlsd.trlsd import TRLSD
@@ -64,7 +64,8 @@ class Lockstep:
 
     Each run starts with the ``source`` transitions in its buffer (their rewards discarded), and acts as
     ``TRLSD.act``/``TRLSD.add_online_transition`` do: a task's Q is fitted at its first step, the greedy
-    action is taken, the transition feeds its task's learner, and the tasks whose trigger fired are refitted.
+    action is taken (or an exploratory one, ``Engine.behave``), the transition feeds its task's learner,
+    and the tasks whose trigger fired are refitted.
 
     :param model: a ``TRLSD`` model with the ``LinearPolicy`` whose settings (``model.config``, gamma, the
         policy's features and Fitted-Q settings) every run takes; its own buffer and learners are not used
@@ -108,6 +109,7 @@ class Lockstep:
             max_iterations=model.config.fqi_max_iterations,
             tol=model.config.fqi_tolerance,
             stop_rule=model.config.fqi_stop,
+            exploration=model.config.exploration,
         )
 
     def run(self, seeds: Sequence[int]) -> list[LockstepRecord]:
@@ -120,9 +122,9 @@ class Lockstep:
         if len(seeds) != n_runs:
             raise ValueError(f"one seed per run: {n_runs} runs, got {len(seeds)} seeds")
         self.seeds = list(seeds)
-        if self.model.config.tie_break == "random":
-            for run, seed in zip(self.engine.runs, seeds, strict=True):
-                run.ties = tie_rng(seed)
+        for run, seed in zip(self.engine.runs, seeds, strict=True):
+            run.ties = tie_rng(seed) if self.model.config.tie_break == "random" else None
+            run.explore = explore_rng(seed)
         everyone = np.arange(n_runs)
         states, tasks = self.envs.reset(everyone, list(seeds))
         records = [
@@ -135,7 +137,7 @@ class Lockstep:
         ]
         for step in range(self.n_steps):
             _record_refits(records, self.engine.fit_first(everyone, tasks), step)
-            actions = self.engine.greedy(everyone, states, tasks)
+            actions = self.engine.behave(everyone, states, tasks)
             next_states, rewards, terminated, truncated = self.envs.step(actions)
             for record, state, task, action in zip(records, states, tasks, actions, strict=True):
                 record.states[step], record.tasks[step], record.actions[step] = state, task, action

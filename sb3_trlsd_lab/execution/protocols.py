@@ -152,8 +152,9 @@ class Protocol:
         """
         Keyword arguments of a ``TRLSD`` model with the named head: ``gamma``, ``first_fit`` and
         ``reward_head_kwargs`` (``head_kwargs``), with the paper's features (``"paper"``: 5 x 5 RBFs of width
-        0.2 on the maze), Fitted-Q's stopping rule on theta, a refit as soon as the trigger fires and the
-        first of tied greedy actions, which the library's defaults are not.
+        0.2 on the maze), Fitted-Q's stopping rule on theta, a refit as soon as the trigger fires, the first
+        of tied greedy actions and the greedy policy throughout (no epsilon-greedy steps), which the
+        library's defaults are not.
 
         :param reward_head: a head name ``TRLSD`` takes
         """
@@ -165,6 +166,7 @@ class Protocol:
             "fqi_stop": "theta",
             "refit_growth": 0.0,
             "tie_break": "first",
+            "exploration_initial_eps": 0.0,
         }
 
     def run_inputs(self, reward_head: str, multitask: bool) -> tuple:
