@@ -47,7 +47,7 @@ CANDIDATES: dict[str, dict[str, Any]] = {
     # Epsilon-greedy over each task's first steps: none (the greedy policy), or over other spans.
     "exploration_initial_eps=0": {"exploration_initial_eps": 0.0},
     "exploration_steps=100": {"exploration_steps": 100},
-    "exploration_steps=500": {"exploration_steps": 500},
+    "exploration_steps=250": {"exploration_steps": 250},
 }
 
 

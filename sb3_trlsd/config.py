@@ -168,7 +168,7 @@ class TRLSDConfig:
     tie_break: str = "random"
     exploration_initial_eps: float = 1.0
     exploration_final_eps: float = 0.0
-    exploration_steps: int = 250
+    exploration_steps: int = 500
     fqi_max_iterations: int | None = None
     fqi_tol: float | None = None
     fqi_stop: str = "targets"
