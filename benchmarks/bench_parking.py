@@ -28,6 +28,7 @@ from sb3_trlsd_lab.execution.jobs import run_jobs
 # (label, method of the suite, TRLSD settings other than its defaults)
 VARIANTS: list[tuple[str, str, dict[str, Any]]] = [
     ("TRLSD (defaults)", "trlsd", {}),
+    ("TRLSD, greedy throughout", "trlsd", {"exploration_initial_eps": 0.0}),
     ("TRLSD, reward_timing='transition'", "trlsd", {"reward_timing": "transition"}),
     ("TRLSD given the source's true rewards", "trlsd-reward-given", {}),
     ("TRLSD, MlpPolicy (defaults)", "trlsd-mlp", {}),

@@ -77,10 +77,11 @@ class TRLSD(OffPolicyAlgorithm):
 
     Defaults are meant for any family of tasks, not one env's units: ``update_ratio=2`` and lambda = 1 for
     the reward regression are the paper's (section 4); the features (``"auto"``), Fitted-Q's stopping rule
-    (``"targets"``), ``refit_growth=0.1``, the reward timing and ``kappa=0`` were chosen on the tuning
-    weights of the MO-Gymnasium suite (``benchmarks/tune_suite.py``, see the docs' benchmarks page). The
-    paper's own settings (kappa 0.1, its 5x5 RBFs of width 0.2, refits as soon as the trigger fires) are
-    what ``sb3-trlsd reproduce`` and the maze's zoo configs give. The paper does not give the discount
+    (``"targets"``), ``refit_growth=0.1``, the reward timing, the exploration schedule and ``kappa=0`` were
+    chosen on the tuning weights of the MO-Gymnasium suite (``benchmarks/tune_suite.py``, see the docs'
+    benchmarks page). The paper's own settings (kappa 0.1, its 5x5 RBFs of width 0.2, refits as soon as the
+    trigger fires, the greedy policy throughout) are what ``sb3-trlsd reproduce`` and the maze's zoo configs
+    give. The paper does not give the discount
     factor: ``gamma=0.9`` makes the maze's reward cell worth reaching from anywhere (its effective horizon
     of ~10 steps covers the longest path around the walls) and keeps FQI short.
 

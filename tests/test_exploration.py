@@ -1,13 +1,18 @@
 """Epsilon-greedy while learning, per task: the schedule, the actions it gives, and where it is off."""
 
+from pathlib import Path
+
 import gymnasium as gym
 import numpy as np
 import pytest
+import yaml
 
 from sb3_trlsd import TRLSD
 from sb3_trlsd.engine import Exploration
 from sb3_trlsd_lab.execution.protocols import AS_BUILT
 from tests.conftest import MAZE_ID
+
+ZOO_CONFIGS = Path(__file__).parents[1] / "zoo_configs"
 
 
 def test_the_rate_falls_linearly_over_a_task_s_first_steps_then_stays():
@@ -63,6 +68,12 @@ def test_the_paper_s_protocol_and_its_zoo_configs_never_explore():
     settings = AS_BUILT.model_kwargs("ridge")
     model = TRLSD("LinearPolicy", gym.make(MAZE_ID, task=3), **settings)
     assert not model.config.exploration.explores
+    configs = ZOO_CONFIGS.glob("*.yml")
+    paper_configs = [path for path in configs if "as the paper's figures" in path.read_text()]
+    assert len(paper_configs) == 6
+    for path in paper_configs:
+        (hyperparameters,) = yaml.safe_load(path.read_text()).values()
+        assert hyperparameters["exploration_initial_eps"] == 0.0, path.name
 
 
 @pytest.mark.parametrize(
