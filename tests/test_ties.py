@@ -22,9 +22,19 @@ def test_ties_are_drawn_among_the_tied_actions_only_and_alike_in_any_batch():
 
 
 def maze_model(tie_break: str) -> TRLSD:
-    """TRLSD with kappa = 0 and a source of one task whose rewards it discards: its Q is 0 everywhere."""
+    """
+    TRLSD with kappa = 0 and a source of one task whose rewards it discards: its Q is 0 everywhere. The
+    greedy policy throughout, so that every action is the tie-break's (no epsilon-greedy step).
+    """
     source = collect_transitions(gym.make(MAZE_ID, task=12), 300, seed=1)
-    model = TRLSD("LinearPolicy", gym.make(MAZE_ID, task=0), seed=0, kappa=0.0, tie_break=tie_break)
+    model = TRLSD(
+        "LinearPolicy",
+        gym.make(MAZE_ID, task=0),
+        seed=0,
+        kappa=0.0,
+        tie_break=tie_break,
+        exploration_initial_eps=0.0,
+    )
     model.load_transitions(source, keep_rewards=False)
     return model
 
