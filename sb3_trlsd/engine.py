@@ -55,15 +55,20 @@ NewLearner = Callable[[int, int], TaskLearner]
 RefitHook = Callable[[int, TaskLearner, FQIResult, np.ndarray], None]
 
 
+def _run_rng(seed: int | None, stream: int) -> np.random.Generator:
+    """A generator of its own for each ``stream`` of a run, derived from the run's seed (or fresh entropy)."""
+    if seed is None:
+        return np.random.default_rng()
+    return np.random.default_rng(np.random.SeedSequence([int(seed) % 2**64, stream]))
+
+
 def tie_rng(seed: int | None) -> np.random.Generator:
     """
     The generator of a run's random tie-breaks, derived from the run's seed (fresh entropy without one).
 
     :param seed: the run's seed (a model's ``seed``)
     """
-    if seed is None:
-        return np.random.default_rng()
-    return np.random.default_rng(np.random.SeedSequence([int(seed) % 2**64, 5]))
+    return _run_rng(seed, 5)
 
 
 def explore_rng(seed: int | None) -> np.random.Generator:
@@ -72,9 +77,7 @@ def explore_rng(seed: int | None) -> np.random.Generator:
 
     :param seed: the run's seed (a model's ``seed``)
     """
-    if seed is None:
-        return np.random.default_rng()
-    return np.random.default_rng(np.random.SeedSequence([int(seed) % 2**64, 7]))
+    return _run_rng(seed, 7)
 
 
 @dataclass(frozen=True)
