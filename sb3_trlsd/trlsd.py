@@ -81,9 +81,9 @@ class TRLSD(OffPolicyAlgorithm):
     chosen on the tuning weights of the MO-Gymnasium suite (``benchmarks/tune_suite.py``, see the docs'
     benchmarks page). The paper's own settings (kappa 0.1, its 5x5 RBFs of width 0.2, refits as soon as the
     trigger fires, the greedy policy throughout) are what ``sb3-trlsd reproduce`` and the maze's zoo configs
-    give. The paper does not give the discount
-    factor: ``gamma=0.9`` makes the maze's reward cell worth reaching from anywhere (its effective horizon
-    of ~10 steps covers the longest path around the walls) and keeps FQI short.
+    give. The paper does not give the discount factor: ``gamma=0.9`` makes the maze's reward cell worth
+    reaching from anywhere (its effective horizon of ~10 steps covers the longest path around the walls) and
+    keeps FQI short.
 
     :param policy: ``"LinearPolicy"`` (the paper's linear Q on RBF features) or ``"MlpPolicy"``
     :param env: the environment (Gymnasium env, VecEnv of any number of envs, or registered id); observations
@@ -161,9 +161,8 @@ class TRLSD(OffPolicyAlgorithm):
         relabel at: ``"start_state"`` (the paper's R_tau(s)), ``"next_state"`` (the state it arrives at:
         Gymnasium's convention, e.g. a goal paid on arrival), ``"transition"`` (the pair (s, s'), whose
         features are Phi(s) and Phi(s') side by side: a reward paid the first time a place is reached, say)
-        or ``"auto"`` (the env's
-        ``metadata["reward_timing"]`` where it declares one, as this package's envs do, else
-        ``"next_state"``)
+        or ``"auto"`` (the env's ``metadata["reward_timing"]`` where it declares one, as this package's envs
+        do, else ``"next_state"``)
     :param source_transitions: source set loaded (rewards discarded) at the first ``learn``: a number of
         random transitions (the paper's 25,000) from ``source_env``, or the path of a ``Transitions`` .npz
     :param source_seed: seed of the collection of ``source_transitions`` (None: ``seed``)
