@@ -115,11 +115,11 @@ class TaskLearner:
         :param reward: the reward observed for it
         :param n_rows: the rows of the shared buffer now
         """
-        state = self.inputs(
+        rewarded = self.inputs(
             np.asarray(state, dtype=np.float64).reshape(1, -1),
             np.asarray(next_state, dtype=np.float64).reshape(1, -1),
         )
-        self.head.update(state, np.array([reward], dtype=np.float64))
+        self.head.update(rewarded, np.array([reward], dtype=np.float64))
         self.samples += 1
         if not self.fitted:
             self.due = self.due or self.first_fit == "first_sample"
@@ -130,7 +130,7 @@ class TaskLearner:
             if not self.head.has_uncertainty:
                 self.triggered = n_rows >= self.update_ratio * max(self.rows_at_refit, 1)
             else:
-                self.triggered = self.head.refit_due(self.uncertainty_at_refit, state, self.update_ratio)
+                self.triggered = self.head.refit_due(self.uncertainty_at_refit, rewarded, self.update_ratio)
         new_samples = self.samples - self.samples_at_refit
         self.due = self.triggered and new_samples >= max(1.0, self.refit_growth * self.samples_at_refit)
 
