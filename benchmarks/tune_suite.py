@@ -34,6 +34,7 @@ CANDIDATES: dict[str, dict[str, Any]] = {
     "kappa=0.01": {"kappa": 0.01},
     "reward_timing=start_state": {"reward_timing": "start_state"},
     "reward_timing=transition": {"reward_timing": "transition"},
+    "reward_timing=step": {"reward_timing": "step"},
     "tie_break=first": {"tie_break": "first"},
     "feature_map=paper": {"feature_map": "paper"},
     # On integer states: "auto" as on real states (a budget under the lattice's points), or the lattice by

@@ -36,10 +36,18 @@ from sb3_trlsd.reward_heads import (
     RewardHead,
     make_reward_head,
 )
-from sb3_trlsd.reward_timing import REWARD_TIMINGS, TransitionFeatures, input_box
+from sb3_trlsd.reward_timing import REWARD_TIMINGS, TransitionFeatures, input_box, input_widths
 from sb3_trlsd.task_learner import FIRST_FIT_RULES, TaskLearner
 
-__all__ = ["FEATURE_HEAD_NAMES", "HEAD_NAMES", "LearnerBuilder", "TRLSDConfig", "check_discount", "head_seed"]
+__all__ = [
+    "FEATURE_HEAD_NAMES",
+    "HEAD_NAMES",
+    "STEP_HEAD_NAMES",
+    "LearnerBuilder",
+    "TRLSDConfig",
+    "check_discount",
+    "head_seed",
+]
 
 # The heads built by name: the paper's, and those with other confidence bounds.
 HEAD_NAMES = REWARD_HEAD_NAMES + CONFIDENCE_BOUND_HEAD_NAMES
@@ -47,6 +55,9 @@ HEAD_NAMES = REWARD_HEAD_NAMES + CONFIDENCE_BOUND_HEAD_NAMES
 FEATURE_HEAD_NAMES = ("ridge", "ridge_posterior", "thompson")
 # The named heads whose similarity is eq. 6 on states or eq. 7 on features, of width ``sigma``.
 SIMILARITY_HEAD_NAMES = ("ridge", "bernstein")
+# The named heads that can learn the reward of a whole step (s, a, s'): on features, to which the action's
+# one-hot code is added, or with a similarity width along the action (``reward_timing``).
+STEP_HEAD_NAMES = ("ridge", "ridge_posterior", "thompson", "bernstein")
 FEATURES_SIMILARITY_SIGMA = 0.2  # eq. 7 compares feature vectors, whose scale is the features' own
 # Fitted-Q's tolerance by stopping rule when none is given. On the targets, an RMS change of 1e-3 of the
 # return scale: with gamma = 0.9 the targets are then within ~1% of the scale of their fixed point's, well
@@ -153,9 +164,11 @@ class TRLSDConfig:
     :param state_bounds: ``(low, high)`` of the states for an unbounded Box (None: the Box's, finite)
     :param reward_head_kwargs: extra arguments of the named reward heads
     :param reward_timing: what of a transition its reward belongs to: ``"start_state"`` (the paper's
-        R_tau(s)), ``"next_state"`` (the state it arrives at: Gymnasium's convention), ``"transition"`` (the
-        pair (s, s'): a reward for a change of state) or ``"auto"`` (the env's ``metadata["reward_timing"]``
-        where it declares one, else ``"next_state"``)
+        R_tau(s)), ``"next_state"`` (the state it arrives at: a goal paid on arrival), ``"transition"`` (the
+        pair (s, s'): a reward for a change of state), ``"step"`` ((s, a, s'): a reward that also depends on
+        the action, as a cost per action) or ``"auto"`` (the env's ``metadata["reward_timing"]``
+        where it declares one, else ``"step"``, Gymnasium's r(s, a, s'), for the heads that can learn it,
+        ``STEP_HEAD_NAMES``, and ``"next_state"`` for the others)
     """
 
     reward_head: str | RewardHead = "ridge"
@@ -254,8 +267,8 @@ class TRLSDConfig:
             )
         if self.reward_timing not in (*REWARD_TIMINGS, "auto"):
             raise ValueError(
-                f"reward_timing must be one of {[*REWARD_TIMINGS, 'auto']} (the state a reward belongs to), "
-                f"got {self.reward_timing!r}"
+                f"reward_timing must be one of {[*REWARD_TIMINGS, 'auto']} (what of a transition a reward "
+                f"belongs to), got {self.reward_timing!r}"
             )
         if self.first_fit not in FIRST_FIT_RULES:
             raise ValueError(
@@ -382,11 +395,11 @@ class TRLSDConfig:
         the linear Q and the feature heads (None when neither uses one), and its task learners.
 
         :param observation_space: the env's observation space
-        :param n_actions: the env's actions (0 when no Q is fitted on Phi: its memory is then the heads')
+        :param n_actions: the env's actions
         :param linear_q: whether a linear Q-function is fitted on Phi
         :param seed: the run's seed: of the Fourier features and of the Thompson heads' draws
         :param env_reward_timing: the reward timing the env declares (its ``metadata["reward_timing"]``),
-            which ``reward_timing="auto"`` takes (None: ``"next_state"``)
+            which ``reward_timing="auto"`` takes (None: see ``timing_for``)
         :return: the builder
         """
         low, high = self.state_box(observation_space)
@@ -410,18 +423,21 @@ class TRLSDConfig:
                     integer_states=np.issubdtype(state_space_of(observation_space).dtype, np.integer),
                 )
             )
-        return LearnerBuilder(self, low, high, features, self.timing_for(env_reward_timing), seed)
+        return LearnerBuilder(self, low, high, n_actions, features, self.timing_for(env_reward_timing), seed)
 
     def timing_for(self, env_reward_timing: str | None) -> str:
         """
-        The reward timing these settings give on an env that declares ``env_reward_timing`` (None: nothing).
+        The reward timing these settings give on an env that declares ``env_reward_timing`` (None: nothing):
+        ``reward_timing`` unless it is ``"auto"``; else the declaration, or without one ``"step"`` for the
+        heads that can learn it (``STEP_HEAD_NAMES``) and ``"next_state"`` for the others (a head instance
+        included: it was built on states).
 
         :raises ValueError: when ``"auto"`` meets a declaration that is not one of ``REWARD_TIMINGS``
         """
         if self.reward_timing != "auto":
             return self.reward_timing
         if env_reward_timing is None:
-            return "next_state"
+            return "step" if self.reward_head in STEP_HEAD_NAMES else "next_state"
         if env_reward_timing not in REWARD_TIMINGS:
             raise ValueError(
                 f"the env's metadata['reward_timing'] must be one of {list(REWARD_TIMINGS)}, "
@@ -438,6 +454,7 @@ class LearnerBuilder:
     :param config: the settings
     :param low: the state box's lower corner, (d,)
     :param high: its upper corner, (d,)
+    :param n_actions: the env's actions
     :param features: Phi, shared by the linear Q and the feature heads (None when neither uses one)
     :param reward_timing: what of a transition its reward belongs to, one of ``REWARD_TIMINGS``
     :param seed: the run's seed (of the Thompson heads' draws, unless ``reward_head_kwargs`` gives theirs)
@@ -446,15 +463,23 @@ class LearnerBuilder:
     config: TRLSDConfig
     low: np.ndarray
     high: np.ndarray
+    n_actions: int
     features: FeatureMap | None
     reward_timing: str
     seed: int | None = None
 
     def __post_init__(self) -> None:
-        if self.config.reward_head == "known" and self.reward_timing == "transition":
+        head, timing = self.config.reward_head, self.reward_timing
+        if head == "known" and timing in ("transition", "step"):
             raise ValueError(
                 "the 'known' reward_head takes the expected reward of one state, reward_fn(states, task): "
-                "use reward_timing='start_state' or 'next_state' with it, not 'transition'"
+                f"use reward_timing='start_state' or 'next_state' with it, not {timing!r}"
+            )
+        if isinstance(head, str) and head not in STEP_HEAD_NAMES and timing == "step":
+            raise ValueError(
+                f"the {head!r} reward_head lays a grid of cells over states, not over actions: with "
+                "reward_timing='step' use a head on features or similarities ('ridge', 'ridge_posterior', "
+                "'thompson', 'bernstein')"
             )
 
     def new_reward_head(
@@ -484,9 +509,9 @@ class LearnerBuilder:
         if config.reward_head == "thompson":
             kwargs.setdefault("seed", head_seed(self.seed if seed is None else seed, task))
         features = self.features
-        if self.reward_timing == "transition" and features is not None:
-            features = TransitionFeatures(features)
-        low, high = input_box(self.low, self.high, self.reward_timing)
+        if self.reward_timing in ("transition", "step") and features is not None:
+            features = TransitionFeatures(features, self.n_actions if self.reward_timing == "step" else 0)
+        low, high = input_box(self.low, self.high, self.reward_timing, self.n_actions)
         return make_reward_head(
             config.reward_head,
             task=task,
@@ -503,12 +528,12 @@ class LearnerBuilder:
     def similarity_width(self) -> float | np.ndarray:
         """
         The similarity width of the heads (``TRLSDConfig.similarity_width``) on their inputs: a state's
-        widths, twice side by side for the ``"transition"`` timing's pairs of states.
+        widths, or those of a pair or a step (``input_widths``).
         """
         width = self.config.similarity_width(self.low, self.high)
-        if self.reward_timing == "transition" and np.ndim(width):
-            return np.concatenate([width, width])
-        return width
+        if isinstance(width, np.ndarray):
+            return input_widths(width, self.reward_timing)
+        return width  # eq. 7's, one width over feature vectors
 
     def new_task_learner(
         self, task: int, reward_fn: RewardFn | None = None, seed: int | None = None

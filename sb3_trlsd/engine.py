@@ -319,7 +319,7 @@ class Engine:
                     (states[i], actions[i], rewards[i], next_states[i], tasks[i], truncated[i], terminated[i])
                 )
             learner = self.learner(run_index, tasks[i])
-            learner.observe(states[i], next_states[i], float(rewards[i]), n_rows=run.n_rows)
+            learner.observe(states[i], int(actions[i]), next_states[i], float(rewards[i]), n_rows=run.n_rows)
 
     def due(self) -> list[tuple[int, int]]:
         """The (run, task) pairs whose refit is due, in order."""

@@ -39,7 +39,8 @@ class RelabellingReplayBuffer(SharedDynamicsReplayBuffer):
     Each task of the observations has a reward head (``"ridge"``: eq. 8-9 on the feature map Phi;
     ``"tabular"``: eq. 10 on a grid of cells), which learns from every online transition of its task as
     ``add`` stores it: the reward observed for the transition, at what of it the reward belongs to
-    (``reward_timing``: the next state by default, the start state s of the paper's R_tau(s), or the pair).
+    (``reward_timing``: the whole step (s, a, s') by default, the next state, the start state s of the paper's
+    R_tau(s), or the pair (s, s')).
     A sampled source row is served to one of the tasks seen online (drawn uniformly when there are several:
     its observation's ``"task"`` becomes that task) with the reward R~_tau = R^_tau + CI_tau of that task's
     head as it is now (``kappa=0``: the plain estimate R^). Online rows keep their observed reward by default,
@@ -118,9 +119,10 @@ class RelabellingReplayBuffer(SharedDynamicsReplayBuffer):
     :param reward_fn: ``reward_fn(states, task) -> (n,)``, the expected reward of the ``"known"`` head
     :param seed: seed of the Fourier features and of the ``"thompson"`` heads' draws
     :param reward_timing: what of a transition its reward belongs to, which the heads learn and relabel
-        at: ``"next_state"`` (the state it arrives at: Gymnasium's convention), ``"start_state"`` (the
-        paper's R_tau(s), and this package's envs') or ``"transition"`` (the pair (s, s')); ``"auto"`` is
-        ``"next_state"`` (a buffer sees no env)
+        at: ``"step"`` (s, a, s'): Gymnasium's r(s, a, s')), ``"next_state"`` (the state it arrives at),
+        ``"start_state"`` (the paper's R_tau(s), and this package's envs') or ``"transition"`` (the pair
+        (s, s')); ``"auto"`` (a buffer sees no env) is ``"step"`` for the heads that can learn it and
+        ``"next_state"`` for the others, as ``TRLSD``'s on an env that declares nothing
     :param relabel_online_rows: relabel the online rows too (False: they keep their observed reward)
     """
 
@@ -150,7 +152,7 @@ class RelabellingReplayBuffer(SharedDynamicsReplayBuffer):
         reward_head_kwargs: dict[str, Any] | None = None,
         reward_fn: RewardFn | None = None,
         seed: int | None = None,
-        reward_timing: str = "next_state",
+        reward_timing: str = "auto",
         relabel_online_rows: bool = False,
     ):
         # TRLSD's settings of the relabelling, checked (and named) before anything is built.
@@ -180,7 +182,8 @@ class RelabellingReplayBuffer(SharedDynamicsReplayBuffer):
         )
         self.dict_observations = isinstance(observation_space, spaces.Dict)
         self.relabel_online_rows = bool(relabel_online_rows)
-        builder = self.config.builder(observation_space, n_actions=0, linear_q=False, seed=seed)
+        assert isinstance(action_space, spaces.Discrete)
+        builder = self.config.builder(observation_space, int(action_space.n), linear_q=False, seed=seed)
         self.reward_timing = builder.reward_timing
         self.features = builder.features
         self.reward_heads = [
@@ -201,7 +204,7 @@ class RelabellingReplayBuffer(SharedDynamicsReplayBuffer):
         super().add(obs, next_obs, action, reward, done, infos)
         states, tasks = split_observation(obs, self.obs_shape[0])
         next_states, _ = split_observation(next_obs, self.obs_shape[0])
-        inputs = rewarded_inputs(states, next_states, self.reward_timing)
+        inputs = rewarded_inputs(states, np.asarray(action).reshape(-1), next_states, self.reward_timing)
         rewards = np.asarray(reward, dtype=np.float64).reshape(-1)
         for task in np.unique(tasks):
             self.reward_heads[task].update(inputs[tasks == task], rewards[tasks == task])
@@ -242,6 +245,7 @@ class RelabellingReplayBuffer(SharedDynamicsReplayBuffer):
         tasks = self.tasks[batch_inds, env_indices].copy()  # (B,)
         rewards = self.rewards[batch_inds, env_indices].copy()  # (B,), float32
         source = ~self.has_reward[batch_inds, env_indices]  # (B,)
+        actions = self.actions[batch_inds, env_indices]  # (B, 1)
         if source.any():
             targets = self.online_tasks()
             if not len(targets):
@@ -254,19 +258,19 @@ class RelabellingReplayBuffer(SharedDynamicsReplayBuffer):
         relabelled = np.ones_like(source) if self.relabel_online_rows else source
         for task in np.unique(tasks[relabelled]):
             rows = relabelled & (tasks == task)
-            rewarded = rewarded_inputs(states[rows], next_states[rows], self.reward_timing)
+            rewarded = rewarded_inputs(states[rows], actions[rows], next_states[rows], self.reward_timing)
             rewards[rows] = self.reward_heads[task].optimistic(rewarded)  # eq. 5: R~ = R^ + CI
         # Only terminations stop the bootstrap, not the resets after a truncation.
         dones = self.dones[batch_inds, env_indices] * (1 - self.timeouts[batch_inds, env_indices])
         rewards_column = self.to_torch(self._normalize_reward(rewards.reshape(-1, 1), env))
-        actions = self.to_torch(self.actions[batch_inds, env_indices])
+        actions_column = self.to_torch(actions)
         if self.dict_observations:
             observations = self._normalize_obs({"state": states, "task": tasks[:, None]}, env)
             next_observations = self._normalize_obs({"state": next_states, "task": tasks[:, None]}, env)
             assert isinstance(observations, dict) and isinstance(next_observations, dict)
             return DictReplayBufferSamples(
                 observations={key: self.to_torch(value) for key, value in observations.items()},
-                actions=actions,
+                actions=actions_column,
                 next_observations={key: self.to_torch(value) for key, value in next_observations.items()},
                 dones=self.to_torch(dones.reshape(-1, 1)),
                 rewards=rewards_column,
@@ -276,7 +280,7 @@ class RelabellingReplayBuffer(SharedDynamicsReplayBuffer):
         assert isinstance(observations_array, np.ndarray) and isinstance(next_observations_array, np.ndarray)
         return ReplayBufferSamples(
             observations=self.to_torch(observations_array),
-            actions=actions,
+            actions=actions_column,
             next_observations=self.to_torch(next_observations_array),
             dones=self.to_torch(dones.reshape(-1, 1)),
             rewards=rewards_column,

@@ -3,8 +3,8 @@
 A ``TaskLearner`` holds a task's reward head (its samples Xi_tau, R^ and the uncertainty of eq. 9-10), the
 uncertainty as of the task's last refit (the trigger of section 3 compares the current one with it), the
 refit count, whether a refit is due, and the relabelling of the shared buffer for the task, psi: R~_tau at
-the start state of every stored transition, kept up to date with only the rows and samples added since the
-last refit. The Q-function itself (and its warm start, the current parameters) is the policy's; the
+the rewarded input of every stored transition, kept up to date with only the rows and samples added since
+the last refit. The Q-function itself (and its warm start, the current parameters) is the policy's; the
 buffer's rows as the Q-function's fit consumes them are shared by all tasks (``fit_rows.py``).
 """
 
@@ -98,25 +98,30 @@ class TaskLearner:
         """Whether the task's Q-function must be fitted before its next action (its first, by default)."""
         return not self.fitted and self.first_fit == "first_step"
 
-    def observe(self, state: np.ndarray, next_state: np.ndarray, reward: float, n_rows: int) -> None:
+    def observe(
+        self, state: np.ndarray, action: int, next_state: np.ndarray, reward: float, n_rows: int
+    ) -> None:
         """
         Add one online sample of the task to its reward head (the reward at the transition's start state,
-        next state or both, as ``reward_timing`` says), and mark the task due if the trigger fires:
-        section 3 refits once the CI at an encountered state has been divided by ``update_ratio`` since the
-        last refit. The ratio is taken on the kappa-free uncertainty, so that kappa = 0 triggers the same way.
-        A head without uncertainty (the known reward) has nothing to divide: it refits when the shared buffer
-        has grown by ``update_ratio`` since the last refit, so that new dynamics data reaches its policy. A
-        head may have a rule of its own (``RewardHead.refit_due``: the OFUL head's is determinant doubling).
-        A task never fitted is due after this sample under the ``"first_sample"`` rule (and waits for its
-        first step under ``"first_step"``). Once the trigger has fired, the refit waits for ``refit_growth``.
+        next state, both, or the whole step, as ``reward_timing`` says), and mark the task due if the trigger
+        fires: section 3 refits once the CI at an encountered state has been divided by ``update_ratio``
+        since the last refit. The ratio is taken on the kappa-free uncertainty, so that kappa = 0 triggers
+        the same way. A head without uncertainty (the known reward) has nothing to divide: it refits when the
+        shared buffer has grown by ``update_ratio`` since the last refit, so that new dynamics data reaches
+        its policy. A head may have a rule of its own (``RewardHead.refit_due``: the OFUL head's is
+        determinant doubling). A task never fitted is due after this sample under the ``"first_sample"`` rule
+        (and waits for its first step under ``"first_step"``). Once the trigger has fired, the refit waits
+        for ``refit_growth``.
 
         :param state: the transition's start state (d,)
+        :param action: the action taken
         :param next_state: the state it arrived at (d,)
         :param reward: the reward observed for it
         :param n_rows: the rows of the shared buffer now
         """
         rewarded = self.inputs(
             np.asarray(state, dtype=np.float64).reshape(1, -1),
+            np.array([action]),
             np.asarray(next_state, dtype=np.float64).reshape(1, -1),
         )
         self.head.update(rewarded, np.array([reward], dtype=np.float64))
@@ -134,16 +139,17 @@ class TaskLearner:
         new_samples = self.samples - self.samples_at_refit
         self.due = self.triggered and new_samples >= max(1.0, self.refit_growth * self.samples_at_refit)
 
-    def inputs(self, states: np.ndarray, next_states: np.ndarray) -> np.ndarray:
+    def inputs(self, states: np.ndarray, actions: np.ndarray, next_states: np.ndarray) -> np.ndarray:
         """
-        What the task's head sees of transitions from ``states`` to ``next_states`` (``rewarded_inputs`` at
-        its ``reward_timing``); ``inputs(states, states)`` is the reward of staying at each state.
+        What the task's head sees of transitions from ``states`` to ``next_states`` by ``actions``
+        (``rewarded_inputs`` at its ``reward_timing``).
 
         :param states: start states (n, d)
+        :param actions: action indices (n,)
         :param next_states: next states (n, d)
-        :return: (n, d), or (n, 2d) for the ``"transition"`` timing
+        :return: (n, d), (n, 2d) for the ``"transition"`` timing, (n, 2d + 1) for ``"step"``
         """
-        return rewarded_inputs(states, next_states, self.reward_timing)
+        return rewarded_inputs(states, actions, next_states, self.reward_timing)
 
     def relabelled_rewards(self, buffer: SharedDynamicsReplayBuffer) -> np.ndarray:
         """
@@ -156,7 +162,7 @@ class TaskLearner:
         if self._relabelling is None:
             self._cursor = BufferCursor()
         rows, restart = buffer.read_new(self._cursor)
-        states = self.inputs(rows.states, rows.next_states)
+        states = self.inputs(rows.states, rows.actions, rows.next_states)
         if restart or self._relabelling is None:
             self._relabelling = self.head.tracker(states)
         else:

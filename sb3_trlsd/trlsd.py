@@ -36,6 +36,7 @@ from sb3_trlsd.persistence import BUFFER_ROWS, empty_rows, read_replay_buffer
 from sb3_trlsd.policies import LinearPolicy, MlpPolicy, TaskQPolicy
 from sb3_trlsd.q_functions import PolicyQFunctions
 from sb3_trlsd.reward_heads import KnownRewardHead, RewardFn, RewardHead
+from sb3_trlsd.reward_timing import staying_inputs
 from sb3_trlsd.source_data import check_source_transitions, source_transitions_of
 from sb3_trlsd.task_learner import TaskLearner
 
@@ -159,10 +160,12 @@ class TRLSD(OffPolicyAlgorithm):
         ``"bernstein"``)
     :param reward_timing: what of a transition its reward belongs to, which the reward heads learn and
         relabel at: ``"start_state"`` (the paper's R_tau(s)), ``"next_state"`` (the state it arrives at:
-        Gymnasium's convention, e.g. a goal paid on arrival), ``"transition"`` (the pair (s, s'), whose
-        features are Phi(s) and Phi(s') side by side: a reward paid the first time a place is reached, say)
-        or ``"auto"`` (the env's ``metadata["reward_timing"]`` where it declares one, as this package's envs
-        do, else ``"next_state"``)
+        e.g. a goal paid on arrival), ``"transition"`` (the pair (s, s'), whose features are Phi(s) and
+        Phi(s') side by side: a reward paid the first time a place is reached, say), ``"step"`` ((s, a, s'),
+        the action's one-hot code between them: a cost per action too) or ``"auto"`` (the env's
+        ``metadata["reward_timing"]`` where it declares one, as this package's envs do, else ``"step"``,
+        Gymnasium's r(s, a, s'), for the heads that can learn it and ``"next_state"`` for the ``"known"``
+        and tabular heads)
     :param source_transitions: source set loaded (rewards discarded) at the first ``learn``: a number of
         random transitions (the paper's 25,000) from ``source_env``, or the path of a ``Transitions`` .npz
     :param source_seed: seed of the collection of ``source_transitions`` (None: ``seed``)
@@ -431,7 +434,9 @@ class TRLSD(OffPolicyAlgorithm):
             for task in np.unique(transitions.tasks):
                 rows = transitions.tasks == task
                 learner = self.task_learner(task)
-                inputs = learner.inputs(transitions.states[rows], transitions.next_states[rows])
+                inputs = learner.inputs(
+                    transitions.states[rows], transitions.actions[rows], transitions.next_states[rows]
+                )
                 learner.head.update(inputs, transitions.rewards[rows])
         # New dynamics data: every fitted task is refitted at the next training round.
         for learner in self.task_learners.values():
@@ -559,19 +564,28 @@ class TRLSD(OffPolicyAlgorithm):
         self.logger.record("train/bellman_residual", result.bellman_residual)
         if len(rewards) and self.logger.output_formats:
             stored = self.replay_buffer.transitions()
-            estimates = learner.head.estimate(learner.inputs(stored.states, stored.next_states))
+            inputs = learner.inputs(stored.states, stored.actions, stored.next_states)
+            estimates = learner.head.estimate(inputs)
             self.logger.record("reward/ci_mean", float(np.mean(rewards - estimates)))
         every = self.log_picture_every
         due = every and (learner.refits == 1 or learner.refits % every == 0)
         if due and has_tensorboard(self.logger):
             view = TaskView(
                 task=learner.task,
-                estimate=lambda states: learner.head.estimate(learner.inputs(states, states)),
-                bonus=lambda states: learner.head.bonus(learner.inputs(states, states)),
+                estimate=lambda states: self._staying(learner, learner.head.estimate, states),
+                bonus=lambda states: self._staying(learner, learner.head.bonus, states),
                 q_values=lambda states: self.policy.q_values(states, learner.task),
                 trajectory=self.replay_buffer.recent_states(learner.task, 50),
             )
             log_task_picture(self.logger, self.env, view, self.num_timesteps)
+
+    def _staying(
+        self, learner: TaskLearner, values: Callable[[np.ndarray], np.ndarray], states: np.ndarray
+    ) -> np.ndarray:
+        """A head's ``values`` (estimate or bonus) of staying at ``states``, averaged over the actions."""
+        assert isinstance(self.action_space, spaces.Discrete)
+        inputs = staying_inputs(states, learner.reward_timing, int(self.action_space.n))
+        return np.mean([values(rows) for rows in inputs], axis=0)
 
     # ------------------------------------------------------------- save and load
     def _excluded_save_params(self) -> list[str]:

@@ -189,18 +189,19 @@ def test_sampling_a_source_row_before_any_online_row_says_what_to_do(maze_spaces
 
 def test_the_buffer_takes_trlsds_defaults():
     """Every setting the buffer shares with TRLSD defaults to TRLSD's (its config's), so that one set of
-    defaults holds for both; a buffer sees no env, so its reward timing "auto" is written out."""
+    defaults holds for both; a buffer sees no env, so its reward timing "auto" is what TRLSD's is on an env
+    that declares none."""
     fields = {field.name: field for field in dataclasses.fields(TRLSDConfig)}
     shared = [p for p in inspect.signature(RelabellingReplayBuffer).parameters.values() if p.name in fields]
     assert {p.name for p in shared} >= {"reward_head", "kappa", "sigma", "feature_map", "reward_timing"}
     for parameter in shared:
         field = fields[parameter.name]
         default = field.default_factory() if field.default is dataclasses.MISSING else field.default
-        if parameter.name == "reward_timing":
-            assert (parameter.default, default) == ("next_state", "auto")
-        else:
-            same = parameter.default == default or (parameter.default is None and default == {})
-            assert same, parameter.name
+        same = parameter.default == default or (parameter.default is None and default == {})
+        assert same, parameter.name
+    maze = gym.make(MAZE_ID, task=3)
+    buffer = RelabellingReplayBuffer(10, maze.observation_space, maze.action_space, device="cpu")
+    assert buffer.reward_timing == "step" == TRLSDConfig().timing_for(None)
 
 
 def test_bad_settings_and_oversized_sources_are_refused(maze_spaces):

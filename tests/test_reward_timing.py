@@ -1,6 +1,6 @@
 """What of a transition its reward belongs to (``reward_timing``): the heads learn and relabel at the start
-state (the paper's R_tau(s)), at the next state (Gymnasium's convention) or at the pair (s, s'), checked
-against a relabelling by hand."""
+state (the paper's R_tau(s)), at the next state (Gymnasium's convention), at the pair (s, s') or at the step
+(s, a, s'), checked against a relabelling by hand."""
 
 import gymnasium as gym
 import numpy as np
@@ -8,8 +8,15 @@ import pytest
 from gymnasium import spaces
 
 from sb3_trlsd import TRLSD, RelabellingReplayBuffer
+from sb3_trlsd.config import TRLSDConfig
 from sb3_trlsd.feature_maps import AdditiveRBF
-from sb3_trlsd.reward_timing import TransitionFeatures, rewarded_inputs
+from sb3_trlsd.reward_timing import (
+    ACTION_WIDTH,
+    TransitionFeatures,
+    input_box,
+    rewarded_inputs,
+    staying_inputs,
+)
 from tests.conftest import MAZE_ID
 
 CELLS = 5
@@ -34,6 +41,14 @@ class Corridor(gym.Env):
         return np.array([self.x], dtype=np.float32), reward, False, self.np_random.random() < 0.05, {}
 
 
+class CostlyCorridor(Corridor):
+    """The corridor whose step right also costs 0.5: a reward of (a, s'), not of the states alone."""
+
+    def step(self, action):
+        obs, reward, terminated, truncated, info = super().step(action)
+        return obs, reward - 0.5 * action, terminated, truncated, info
+
+
 class EntryCorridor(Corridor):
     """The corridor paid 1 only on entering its last fifth from outside: a reward of (s, s'), not of one."""
 
@@ -56,6 +71,18 @@ def cell_means_by_hand(rewarded: np.ndarray, rewards: np.ndarray, queries: np.nd
         [rewards[cells == c].mean() if np.any(cells == c) else 0.0 for c in range(CELLS ** rewarded.shape[1])]
     )
     return means[query_cells]
+
+
+def ridge_by_hand(phi: np.ndarray, rewards: np.ndarray, queries: np.ndarray) -> np.ndarray:
+    """Ridge regression (lambda = 1) of ``rewards`` on the features ``phi``, at the features ``queries``."""
+    weights = np.linalg.solve(phi.T @ phi + np.eye(phi.shape[1]), phi.T @ rewards)
+    return queries @ weights
+
+
+def step_features_by_hand(model: TRLSD, states, actions, next_states) -> np.ndarray:
+    """[Phi(s), e_a, Phi(s')] of each transition, from the model's state features."""
+    one_hot = np.eye(int(model.action_space.n))[np.asarray(actions, dtype=int).reshape(-1)]
+    return np.hstack([model.features(states), one_hot, model.features(next_states)])
 
 
 def fill_online(model: TRLSD, env: Corridor, steps: int = 300) -> None:
@@ -120,11 +147,11 @@ def test_transition_features_are_each_state_s_side_by_side():
     phi = AdditiveRBF((0.0, -1.0), (1.0, 1.0), n_per_dim=(3, 4), sigma=0.2)
     pair = TransitionFeatures(phi)
     states, next_states = np.array([[0.1, 0.5], [0.9, -0.7]]), np.array([[0.2, 0.4], [0.3, 0.0]])
-    inputs = rewarded_inputs(states, next_states, "transition")
+    inputs = rewarded_inputs(states, np.array([0, 1]), next_states, "transition")
     assert inputs.shape == (2, 4) and pair.low == (0.0, -1.0, 0.0, -1.0) and pair.n_features == 14
     np.testing.assert_array_equal(pair(inputs), np.hstack([phi(states), phi(next_states)]))
     with pytest.raises(ValueError, match="reward_timing must be one of"):
-        rewarded_inputs(states, next_states, "arrival")
+        rewarded_inputs(states, np.array([0, 1]), next_states, "arrival")
 
 
 def test_the_ridge_head_learns_a_reward_for_entering_with_the_transition_timing():
@@ -144,7 +171,10 @@ def test_the_known_head_refuses_the_transition_timing():
 
 
 def test_auto_reads_the_env_s_declaration_and_defaults_to_gymnasium_s_convention():
-    assert TRLSD("LinearPolicy", Corridor()).reward_timing == "next_state"
+    assert TRLSD("LinearPolicy", Corridor()).reward_timing == "step"  # r(s, a, s')
+    assert TRLSD("MlpPolicy", Corridor()).reward_timing == "step"
+    for head in ("tabular", "corners"):  # a grid over states: the next state's
+        assert TRLSD("LinearPolicy", Corridor(), reward_head=head).reward_timing == "next_state"
     maze = TRLSD("LinearPolicy", gym.make(MAZE_ID, task=3))
     assert maze.reward_timing == "start_state" and maze.task_learner(3).reward_timing == "start_state"
     with pytest.raises(ValueError, match="reward_timing must be one of"):
@@ -176,8 +206,97 @@ def test_the_relabelling_buffer_learns_and_relabels_at_the_timing_s_state(timing
     sample = buffer.sample(100)
     sampled_states = sample.observations.numpy().astype(np.float64)
     sampled_next = sample.next_observations.numpy().astype(np.float64)
-    rewarded = rewarded_inputs(states, next_states, timing).astype(np.float64)
-    queries = rewarded_inputs(sampled_states, sampled_next, timing)
+    rewarded = rewarded_inputs(states, np.ones(len(states)), next_states, timing).astype(np.float64)
+    queries = rewarded_inputs(sampled_states, np.ones(len(sampled_states)), sampled_next, timing)
     np.testing.assert_allclose(
         sample.rewards.numpy()[:, 0], cell_means_by_hand(rewarded, rewards, queries), rtol=1e-6
     )
+
+
+def test_step_features_put_the_action_s_one_hot_code_between_the_states():
+    phi = AdditiveRBF((0.0, -1.0), (1.0, 1.0), n_per_dim=(3, 4), sigma=0.2)
+    step = TransitionFeatures(phi, n_actions=3)
+    states, next_states = np.array([[0.1, 0.5], [0.9, -0.7]]), np.array([[0.2, 0.4], [0.3, 0.0]])
+    inputs = rewarded_inputs(states, np.array([2, 0]), next_states, "step")
+    assert inputs.shape == (2, 5) and np.array_equal(inputs[:, 2], [2.0, 0.0])
+    assert step.low == (0.0, -1.0, 0.0, 0.0, -1.0) and step.high == (1.0, 1.0, 2.0, 1.0, 1.0)
+    assert step.n_features == 17
+    codes = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])
+    np.testing.assert_array_equal(step(inputs), np.hstack([phi(states), codes, phi(next_states)]))
+    low, high = input_box(np.zeros(2), np.ones(2), "step", n_actions=1)  # one action: still low < high
+    assert np.all(low < high)
+
+
+def test_the_step_timing_relabels_the_buffer_as_ridge_regression_by_hand():
+    env = CostlyCorridor()
+    model = TRLSD("LinearPolicy", env, kappa=0.0, reward_timing="step", seed=0)
+    fill_online(model, env, steps=400)
+    data = model.replay_buffer.transitions()
+    phi = step_features_by_hand(model, data.states, data.actions, data.next_states)
+    relabelled = model.task_learner(0).relabelled_rewards(model.replay_buffer)
+    np.testing.assert_allclose(relabelled, ridge_by_hand(phi, data.rewards, phi), atol=1e-8)
+    assert model.task_learner(0).head.features.n_features == 2 * model.features.n_features + 2
+    widths = TRLSDConfig(reward_timing="step").builder(env.observation_space, 2, linear_q=True)
+    state_width = TRLSDConfig().similarity_width(np.zeros(1), np.ones(1))
+    np.testing.assert_allclose(
+        widths.similarity_width(), np.concatenate([state_width, [ACTION_WIDTH], state_width])
+    )
+
+
+def test_only_the_step_timing_learns_a_cost_per_action():
+    """Right costs 0.5 wherever it leads: the step timing learns it, the next state alone cannot."""
+    learnt = {}
+    for timing in ("next_state", "step"):
+        env = CostlyCorridor()
+        model = TRLSD("LinearPolicy", env, kappa=0.0, reward_timing=timing, seed=0)
+        fill_online(model, env, steps=600)
+        data = model.replay_buffer.transitions()
+        relabelled = model.task_learner(0).relabelled_rewards(model.replay_buffer)
+        inside = data.next_states[:, 0] < 0.7  # far from the paid fifth: only the cost differs
+        right, left = inside & (data.actions == 1), inside & (data.actions == 0)
+        learnt[timing] = relabelled[left].mean() - relabelled[right].mean()
+    assert abs(learnt["step"] - 0.5) < 0.1
+    assert abs(learnt["next_state"]) < 0.1
+
+
+@pytest.mark.parametrize("head", ["known", "tabular", "corners"])
+def test_heads_on_states_alone_refuse_the_step_timing(head):
+    with pytest.raises(ValueError, match="step"):
+        TRLSD("LinearPolicy", gym.make(MAZE_ID, task=3), reward_head=head, reward_timing="step")
+
+
+def test_the_relabelling_buffer_relabels_a_step_by_its_action():
+    env = CostlyCorridor()
+    buffer = RelabellingReplayBuffer(
+        500,
+        env.observation_space,
+        env.action_space,
+        device="cpu",
+        kappa=0.0,
+        reward_timing="step",
+        relabel_online_rows=True,
+    )
+    rng = np.random.default_rng(1)
+    states = rng.uniform(0, 1, size=(200, 1)).astype(np.float32)
+    actions = rng.integers(2, size=200)
+    next_states = np.clip(states + np.where(actions, 0.1, -0.1)[:, None], 0, 1).astype(np.float32)
+    rewards = (next_states[:, 0] >= 0.8) - 0.5 * actions
+    for state, action, next_state, reward in zip(states, actions, next_states, rewards, strict=True):
+        buffer.add(
+            state[None], next_state[None], np.array([[action]]), np.array([reward]), np.array([False]), [{}]
+        )
+    sample = buffer.sample(100)
+    sampled = [sample.observations.numpy(), sample.actions.numpy()[:, 0], sample.next_observations.numpy()]
+    phi = np.hstack([buffer.features(states), np.eye(2)[actions], buffer.features(next_states)])
+    queries = np.hstack(
+        [buffer.features(sampled[0]), np.eye(2)[sampled[1].astype(int)], buffer.features(sampled[2])]
+    )
+    np.testing.assert_allclose(sample.rewards.numpy()[:, 0], ridge_by_hand(phi, rewards, queries), rtol=1e-5)
+
+
+def test_staying_is_one_input_or_one_per_action_of_a_step():
+    states = np.array([[0.2], [0.6]])
+    assert [rows.shape for rows in staying_inputs(states, "next_state", 3)] == [(2, 1)]
+    steps = staying_inputs(states, "step", 3)
+    assert [rows[:, 1].tolist() for rows in steps] == [[0.0, 0.0], [1.0, 1.0], [2.0, 2.0]]
+    assert all(np.array_equal(rows[:, [0, 2]], np.hstack([states, states])) for rows in steps)

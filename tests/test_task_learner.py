@@ -21,7 +21,7 @@ def refit_steps(refit_growth: float, seed: int = 0) -> list[int]:
     steps = []
     for n in range(1, N_SAMPLES + 1):
         state = rng.uniform(size=2)
-        learner.observe(state, state, float(state.sum()), n_rows=n)
+        learner.observe(state, 0, state, float(state.sum()), n_rows=n)
         if learner.due:
             steps.append(n)
             learner.refitted(n_rows=n)
@@ -39,7 +39,7 @@ def test_without_growth_a_task_refits_as_soon_as_its_trigger_fires():
     for n in range(1, N_SAMPLES + 1):
         state = rng.uniform(size=2)
         snapshot = learner.uncertainty_at_refit
-        learner.observe(state, state, 1.0, n_rows=n)
+        learner.observe(state, 0, state, 1.0, n_rows=n)
         expected = head.refit_due(snapshot, state.reshape(1, -1), 2.0)
         assert learner.due == expected
         if learner.due:
@@ -78,12 +78,12 @@ def test_a_fired_trigger_is_kept_until_the_wait_is_over():
     learner.refitted(n_rows=0)
     visited, corner = np.array([0.1, 0.1]), np.array([0.9, 0.9])
     for n in range(1, 11):
-        learner.observe(visited, visited, 0.0, n_rows=n)
+        learner.observe(visited, 0, visited, 0.0, n_rows=n)
     learner.refitted(n_rows=10)
-    learner.observe(corner, corner, 1.0, n_rows=11)
+    learner.observe(corner, 0, corner, 1.0, n_rows=11)
     assert learner.triggered and not learner.due
     for n in range(12, 21):
-        learner.observe(visited, visited, 0.0, n_rows=n)
+        learner.observe(visited, 0, visited, 0.0, n_rows=n)
         assert learner.due == (n == 20)
 
 
