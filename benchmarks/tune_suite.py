@@ -33,6 +33,7 @@ CANDIDATES: dict[str, dict[str, Any]] = {
     "kappa=0.03": {"kappa": 0.03},
     "kappa=0.01": {"kappa": 0.01},
     "reward_timing=start_state": {"reward_timing": "start_state"},
+    "reward_timing=next_state": {"reward_timing": "next_state"},
     "reward_timing=transition": {"reward_timing": "transition"},
     "reward_timing=step": {"reward_timing": "step"},
     "tie_break=first": {"tie_break": "first"},

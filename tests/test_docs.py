@@ -18,4 +18,4 @@ def test_the_your_env_example_learns_far_above_a_random_policy():
     )
     assert result.returncode == 0, result.stderr
     trlsd, random = map(float, re.search(r"TRLSD ([\d.]+), random ([\d.]+)", result.stdout).groups())
-    assert trlsd > 0.08 and trlsd > 3 * random, result.stdout  # measured: 0.293 against 0.020
+    assert trlsd > 0.08 and trlsd > 3 * random, result.stdout  # measured: 0.410 against 0.020

@@ -17,9 +17,10 @@ from sb3_trlsd.fqi import DEFAULT_TOL
 from tests.conftest import MAZE_ID
 
 
-def continued_model(tmp_path, save_and_load: bool, first=120, then=180):
+def continued_model(tmp_path, save_and_load: bool, first=120, then=180, reward_timing="auto"):
     """A model learning ``first`` steps, saved and loaded (or not), then learning ``then`` steps more."""
-    model = TRLSD("LinearPolicy", gym.make(MAZE_ID, task=(1, 5)), source_transitions=2_000, seed=4)
+    env = gym.make(MAZE_ID, task=(1, 5))
+    model = TRLSD("LinearPolicy", env, source_transitions=2_000, seed=4, reward_timing=reward_timing)
     model.learn(total_timesteps=first)
     if save_and_load:
         env = model.get_env()  # the same env, its RNG and trajectory going on: an uninterrupted run's
@@ -29,7 +30,8 @@ def continued_model(tmp_path, save_and_load: bool, first=120, then=180):
     return model
 
 
-def test_learning_after_save_and_load_takes_the_actions_of_an_uninterrupted_run(tmp_path):
+@pytest.mark.parametrize("reward_timing", ["auto", "step"])  # the maze's start state, and (s, a, s')
+def test_learning_after_save_and_load_takes_the_actions_of_an_uninterrupted_run(tmp_path, reward_timing):
     """
     Everything a model needs to go on learning is in its zip: the source and online rows of the shared
     buffer, the reward heads with their samples, the trigger state and refit counts. With the env's RNG
@@ -38,8 +40,9 @@ def test_learning_after_save_and_load_takes_the_actions_of_an_uninterrupted_run(
     """
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # no "empty buffer" warning
-        resumed = continued_model(tmp_path, save_and_load=True)
-    uninterrupted = continued_model(tmp_path, save_and_load=False)
+        resumed = continued_model(tmp_path, save_and_load=True, reward_timing=reward_timing)
+    uninterrupted = continued_model(tmp_path, save_and_load=False, reward_timing=reward_timing)
+    assert resumed.reward_timing == reward_timing.replace("auto", "start_state")
     ours, theirs = resumed.replay_buffer.transitions(), uninterrupted.replay_buffer.transitions()
     assert len(ours) == 2_000 + 300
     np.testing.assert_array_equal(ours.actions, theirs.actions)
