@@ -23,8 +23,10 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from functools import cache
 
 import numpy as np
+from threadpoolctl import ThreadpoolController
 
 from sb3_trlsd.buffers import SharedDynamicsReplayBuffer
 from sb3_trlsd.data import Transitions
@@ -48,6 +50,17 @@ __all__ = [
 # random (a Q that is 0 everywhere, before any reward was seen with kappa = 0, then acts at random instead of
 # repeating action 0).
 TIE_BREAKS = ("random", "first")
+# A refit's BLAS calls run on this many threads: its products are thin (rows x k features, k at most a few
+# hundred with the feature maps' budgets) and its solves small (k x k), and on 2 cores threads cost more
+# than they give (docs/speed.rst: 5.4 -> 3.5 ms a step on deep-sea treasure, 16 -> 8 with 256 features).
+REFIT_BLAS_THREADS = 1
+
+
+@cache
+def blas_controller() -> ThreadpoolController:
+    """The process's BLAS libraries, inspected once."""
+    return ThreadpoolController()
+
 
 # (run, task) -> a fresh learning state of that task in that run
 NewLearner = Callable[[int, int], TaskLearner]
@@ -343,13 +356,18 @@ class Engine:
     def refit(self, pairs: Sequence[tuple[int, int]]) -> list[FQIResult]:
         """
         Refit the Q of each ``(run, task)`` now: its run's buffer relabelled with the task's reward proxy R~
-        (Algorithm 1, psi), then Fitted-Q Iteration from the current parameters, all pairs in one call.
+        (Algorithm 1, psi), then Fitted-Q Iteration from the current parameters, all pairs in one call, with
+        BLAS on ``REFIT_BLAS_THREADS`` threads.
 
         :param pairs: the (run, task) pairs
         :return: the fit of each pair
         """
         if not pairs:
             return []
+        with blas_controller().limit(limits=REFIT_BLAS_THREADS, user_api="blas"):
+            return self._refit(pairs)
+
+    def _refit(self, pairs: Sequence[tuple[int, int]]) -> list[FQIResult]:
         for run in sorted({run for run, _ in pairs}):
             self.runs[run].write_pending()
         buffers = [run.buffer for run in self.runs]

@@ -13,8 +13,10 @@ changes only where two Q-values tie within it, which these seeded cases do not m
 import gymnasium as gym
 import numpy as np
 import pytest
+from threadpoolctl import threadpool_info, threadpool_limits
 
 from sb3_trlsd import TRLSD, collect_transitions
+from sb3_trlsd.engine import REFIT_BLAS_THREADS
 from sb3_trlsd_envs import FOUR_ROOMS_ID, MAZE_ID
 from sb3_trlsd_lab.execution.env_batches import env_batch
 from sb3_trlsd_lab.execution.lockstep import Lockstep
@@ -118,3 +120,17 @@ def test_a_batch_on_another_family_steps_its_envs_one_by_one_with_the_same_resul
             )
             np.testing.assert_array_equal(record.actions, actions)
             assert record.refit_steps == refits
+
+
+def test_refits_run_blas_on_one_thread_and_give_the_threads_back():
+    """A refit's products are thin and its solves small: BLAS runs them on ``REFIT_BLAS_THREADS`` threads."""
+    model = TRLSD("LinearPolicy", gym.make(MAZE_ID, task=3), source_transitions=500, seed=0)
+    seen = []
+    model.engine.on_refit = lambda *_: seen.append(
+        [library["num_threads"] for library in threadpool_info() if library["user_api"] == "blas"]
+    )
+    with threadpool_limits(2, user_api="blas"):
+        model.learn(total_timesteps=20)
+        after = [library["num_threads"] for library in threadpool_info() if library["user_api"] == "blas"]
+    assert seen and all(threads == [REFIT_BLAS_THREADS] * len(threads) for threads in seen)
+    assert REFIT_BLAS_THREADS == 1 and all(threads == 2 for threads in after)
