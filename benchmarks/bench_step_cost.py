@@ -5,10 +5,12 @@ Each family: ``--source`` random source transitions (rewards discarded, the suit
 (the loop ``learn`` runs, without SB3's rollout machinery), with TRLSD's defaults and the family's state
 bounds. Printed per family: ms per online step (the whole online phase over its steps: refits, relabelling,
 features, the env), refits, the refits' mean Fitted-Q iterations and how many stopped at their cap, and the
-feature count, and whether the step cost is within ``TARGET_MS``. A timing, not a test: nothing is
-asserted. Usage::
+feature count, and whether the step cost is within ``TARGET_MS``. ``--refit-threads`` sets the BLAS
+threads of the refits (``sb3_trlsd.engine.REFIT_BLAS_THREADS``, 1) to compare them with the process's
+(``--threads``). A timing, not a test: nothing is asserted. Usage::
 
     python benchmarks/bench_step_cost.py [--families four-room-v0 ...] [--source 25000] [--steps 1000]
+        [--policy LinearPolicy] [--threads 2] [--refit-threads 1]
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ import gymnasium as gym
 import numpy as np
 from threadpoolctl import threadpool_limits
 
+import sb3_trlsd.engine
 from sb3_trlsd import TRLSD, collect_transitions
 from sb3_trlsd.fqi import FQIResult
 from sb3_trlsd_envs import MAZE_ID
@@ -67,7 +70,11 @@ def main() -> None:
     parser.add_argument("--source", type=int, default=25_000, help="source transitions")
     parser.add_argument("--steps", type=int, default=1_000, help="online steps")
     parser.add_argument("--threads", type=int, default=2, help="BLAS threads")
+    parser.add_argument("--refit-threads", type=int, default=None, help="BLAS threads of the refits")
+    parser.add_argument("--policy", default="LinearPolicy", choices=["LinearPolicy", "MlpPolicy"])
     args = parser.parse_args()
+    if args.refit_threads is not None:
+        sb3_trlsd.engine.REFIT_BLAS_THREADS = args.refit_threads
     print(
         f"{'family':<24} {'ms/step':>8} {'refits':>7} {'FQI its':>8} {'at cap':>7} {'features':>9} "
         f"{f'<= {TARGET_MS:g} ms':>10}"
@@ -77,7 +84,7 @@ def main() -> None:
             if name == "maze":
                 env = gym.make(MAZE_ID, task=0)
                 source = collect_transitions(gym.make(MAZE_ID, task=12), args.source, seed=1)
-                model = TRLSD("LinearPolicy", env, seed=0)
+                model = TRLSD(args.policy, env, seed=0)
             else:
                 family = FAMILIES[name]
                 if not available(family):
@@ -86,7 +93,7 @@ def main() -> None:
                 task = int(family.tasks_of("evaluation")[0])
                 env = make_env(family, task)
                 source = collect_source(family, args.source, seed=1).transitions
-                model = TRLSD("LinearPolicy", env, seed=0, state_bounds=family.state_bounds)
+                model = TRLSD(args.policy, env, seed=0, state_bounds=family.state_bounds)
             model.load_transitions(source, keep_rewards=False)
             row = timed_online(model, env, args.steps, seed=0)
             print(

@@ -43,6 +43,8 @@ CANDIDATES: dict[str, dict[str, Any]] = {
     "max_features=64": {"max_features": 64},
     "feature_map=lattice": {"feature_map": "lattice"},
     "refit_growth=0": {"refit_growth": 0.0},
+    "refit_growth=0.2": {"refit_growth": 0.2},
+    "refit_growth=0.3": {"refit_growth": 0.3},
     # Posterior sampling of the ridge weights (a random deviation per refit, not a bonus), at two scales.
     "thompson,kappa=0.1": {"reward_head": "thompson", "kappa": 0.1},
     "thompson,kappa=0.01": {"reward_head": "thompson", "kappa": 0.01},
