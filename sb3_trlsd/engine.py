@@ -51,8 +51,8 @@ __all__ = [
 # repeating action 0).
 TIE_BREAKS = ("random", "first")
 # A refit's BLAS calls run on this many threads: its products are thin (rows x k features, k at most a few
-# hundred with the feature maps' budgets) and its solves small (k x k), and on 2 cores threads cost more
-# than they give (docs/speed.rst: 5.4 -> 3.5 ms a step on deep-sea treasure, 16 -> 8 with 256 features).
+# hundred with the feature maps' budgets) and its solves small (k x k), where more threads cost more than
+# they give on 2 cores (docs/speed.rst).
 REFIT_BLAS_THREADS = 1
 
 

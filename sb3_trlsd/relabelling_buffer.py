@@ -119,7 +119,7 @@ class RelabellingReplayBuffer(SharedDynamicsReplayBuffer):
     :param reward_fn: ``reward_fn(states, task) -> (n,)``, the expected reward of the ``"known"`` head
     :param seed: seed of the Fourier features and of the ``"thompson"`` heads' draws
     :param reward_timing: what of a transition its reward belongs to, which the heads learn and relabel
-        at: ``"step"`` (s, a, s'): Gymnasium's r(s, a, s')), ``"next_state"`` (the state it arrives at),
+        at: ``"step"`` ((s, a, s'), Gymnasium's r(s, a, s')), ``"next_state"`` (the state it arrives at),
         ``"start_state"`` (the paper's R_tau(s), and this package's envs') or ``"transition"`` (the pair
         (s, s')); ``"auto"`` (a buffer sees no env) is ``"step"`` for the heads that can learn it and
         ``"next_state"`` for the others, as ``TRLSD``'s on an env that declares nothing
