@@ -59,11 +59,13 @@ def test_learn_relabels_fits_and_logs_to_tensorboard(source_transitions, tmp_pat
     assert expected <= tags
 
 
-def test_learn_logs_pictures_and_hyperparameters_to_tensorboard(tmp_path):
+@pytest.mark.parametrize("reward_timing", ["auto", "step"])  # a head of states, and of (s, a, s')
+def test_learn_logs_pictures_and_hyperparameters_to_tensorboard(tmp_path, reward_timing):
     """
     The maze's picture of a task at its first refit and every log_picture_every refits, and the HParams.
     With the default log_interval (4 episodes, ~4 dumps in 300 steps) a picture recorded into the logger
-    would be overwritten before the dump; written when made, every due picture is in the file.
+    would be overwritten before the dump; written when made, every due picture is in the file. A head of
+    steps is drawn as its mean over the actions of staying.
     """
     model = TRLSD(
         "LinearPolicy",
@@ -72,6 +74,7 @@ def test_learn_logs_pictures_and_hyperparameters_to_tensorboard(tmp_path):
         log_picture_every=3,
         tensorboard_log=str(tmp_path),
         kappa=0.1,
+        reward_timing=reward_timing,
         seed=0,
     )
     model.learn(total_timesteps=300)
