@@ -52,6 +52,7 @@ CANDIDATES: dict[str, dict[str, Any]] = {
     "exploration_initial_eps=0": {"exploration_initial_eps": 0.0},
     "exploration_steps=100": {"exploration_steps": 100},
     "exploration_steps=250": {"exploration_steps": 250},
+    "exploration_final_eps=0.1": {"exploration_final_eps": 0.1},
 }
 
 
