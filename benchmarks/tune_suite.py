@@ -4,9 +4,10 @@ Each candidate is a set of TRLSD settings. It runs on every family of the suite 
 the family's tuning target weights (disjoint from the evaluation weights the suite reports), with the same
 source transitions, seeds and budget as the suite, next to the random policy on the same runs. Printed per
 candidate and family: the mean gain over random (paired) ± standard error and ms per online step; and per
-candidate the number of families where the gain is above 0, and the mean over families of the gain divided
-by the family's spread of gains across candidates (so that no family's reward scale decides alone). A
-timing and a comparison, not a test. Usage::
+candidate the number of families where the gain is above 0 by 2 standard errors, and the mean over families
+of the gain divided by the family's scale (``family_scale``: the spread of its gains across candidates, at
+least twice their median standard error, so that no family's reward scale decides alone and differences
+within the noise are not magnified). A timing and a comparison, not a test. Usage::
 
     python benchmarks/tune_suite.py [--runs 8] [--workers 2] [--families ...] [--out results/tuning]
 """
@@ -22,7 +23,7 @@ import numpy as np
 
 from sb3_trlsd_lab.benchmarks.mo_suite.families import FAMILIES, available
 from sb3_trlsd_lab.benchmarks.mo_suite.peers import SETTABLE
-from sb3_trlsd_lab.benchmarks.mo_suite.suite import suite_run
+from sb3_trlsd_lab.benchmarks.mo_suite.suite import family_scale, suite_run
 from sb3_trlsd_lab.execution.jobs import run_jobs
 
 # Each candidate: TRLSD's settings other than its defaults ({}: the defaults as they are).
@@ -48,6 +49,8 @@ CANDIDATES: dict[str, dict[str, Any]] = {
     # Posterior sampling of the ridge weights (a random deviation per refit, not a bonus), at two scales.
     "thompson,kappa=0.1": {"reward_head": "thompson", "kappa": 0.1},
     "thompson,kappa=0.01": {"reward_head": "thompson", "kappa": 0.01},
+    "thompson,kappa=0.003": {"reward_head": "thompson", "kappa": 0.003},
+    "thompson,kappa=0.03": {"reward_head": "thompson", "kappa": 0.03},
     # Epsilon-greedy over each task's first steps: none (the greedy policy), or over other spans.
     "exploration_initial_eps=0": {"exploration_initial_eps": 0.0},
     "exploration_steps=100": {"exploration_steps": 100},
@@ -100,8 +103,11 @@ def main() -> None:
     for candidate, by_family in gains.items():
         cells = "".join(f"{f'{m:+.3f} ± {s:.3f} ({ms:.1f} ms)':>26}" for m, s, ms in by_family.values())
         print(f"{candidate:<28}{cells}")
-    spreads = {name: np.ptp([gains[c][name][0] for c in args.candidates]) or 1.0 for name in args.families}
-    print("\ncandidate                    above random by 2 SE   mean gain / family spread")
+    spreads = {
+        name: family_scale(*np.array([gains[c][name][:2] for c in args.candidates]).T)
+        for name in args.families
+    }
+    print("\ncandidate                    above random by 2 SE   mean gain / family scale")
     for candidate, by_family in gains.items():
         above = sum(m - 2 * s > 0 for m, s, _ in by_family.values())
         scaled = np.mean([by_family[name][0] / spreads[name] for name in args.families])

@@ -19,7 +19,7 @@ from sb3_trlsd_lab.benchmarks.mo_suite.families import (
     weight_split,
 )
 from sb3_trlsd_lab.benchmarks.mo_suite.peers import METHODS, SETTABLE, run_method
-from sb3_trlsd_lab.benchmarks.mo_suite.suite import goal_table, paired_gain, run_suite
+from sb3_trlsd_lab.benchmarks.mo_suite.suite import family_scale, goal_table, paired_gain, run_suite
 from sb3_trlsd_lab.cli import main
 
 GRID_FAMILIES = ["deep-sea-treasure-v0", "resource-gathering-v0", "four-room-v0"]
@@ -214,3 +214,12 @@ def test_the_goal_table_says_which_goal_holds_from_the_paired_differences():
     # 1.1 ± 0.041 above random; 0.05 ± 0.029 ahead of DQN is within 2 SE; 65% is short of 70%.
     cells = ["TRLSD", "+1.100 ± 0.041", "yes", "+0.050 ± 0.029", "**no**", "65%", "**no** |"]
     assert row.split(" | ")[1:] == cells
+
+
+def test_family_scale_is_the_range_of_the_means_or_twice_their_median_error():
+    """A family where the candidates tie within the noise is scaled by the noise, not by a tiny range."""
+    spread, tied = np.array([0.1, 0.5, 0.3]), np.array([0.001, 0.002, 0.0])
+    errors = np.array([0.01, 0.02, 0.03])
+    assert family_scale(spread, errors) == pytest.approx(0.4)
+    assert family_scale(tied, errors) == pytest.approx(0.04)
+    assert family_scale(np.zeros(3), np.zeros(3)) == 1.0

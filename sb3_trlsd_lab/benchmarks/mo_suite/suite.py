@@ -27,7 +27,15 @@ from sb3_trlsd_lab.paper.reporting import mean_and_standard_error, summary, writ
 from sb3_trlsd_lab.stats.bootstrap import stratified_bootstrap_ci
 from sb3_trlsd_lab.stats.statistics import aggregate_mean
 
-__all__ = ["DEFAULT_RUNS", "SOURCE_SEED", "goal_table", "run_suite", "suite_run", "suite_table"]
+__all__ = [
+    "DEFAULT_RUNS",
+    "SOURCE_SEED",
+    "family_scale",
+    "goal_table",
+    "run_suite",
+    "suite_run",
+    "suite_table",
+]
 
 DEFAULT_RUNS = 20
 SOURCE_SEED = 10_000
@@ -112,6 +120,20 @@ def paired_gain(rows: Sequence[Mapping[str, Any]], floor: Sequence[Mapping[str, 
     gains = np.array([row["score"] - other["score"] for row, other in zip(rows, floor, strict=True)])
     mean, se = mean_and_standard_error(gains)
     return {"mean": float(mean), "se": float(se)}
+
+
+def family_scale(means: np.ndarray, standard_errors: np.ndarray) -> float:
+    """
+    What a family's gains are divided by before the tuning protocol (``benchmarks/tune_suite.py``) averages
+    them over families: the range of the candidates' mean gains on it, or twice their median standard error
+    where that is larger (a family where the candidates tie within the noise, e.g. all below random, would
+    otherwise decide the mean by its noise).
+
+    :param means: each candidate's mean gain on the family, (n_candidates,)
+    :param standard_errors: their standard errors, (n_candidates,)
+    :return: the scale, > 0 (1 when every gain and error is 0)
+    """
+    return float(max(np.ptp(means), 2.0 * np.median(standard_errors))) or 1.0
 
 
 def reference_fraction(results: Mapping[str, Mapping[str, Any]], method: str) -> float | None:
