@@ -39,7 +39,9 @@ class LinearFQISolver:
         Gram diagonal of the maze's RBFs (~30 with 6,500 samples per action), so it barely biases theta
     :param dtype: precision of the stored features and of the targets: ``np.float64`` (default), or
         ``np.float32``, which halves the memory the iterations read (they are bound by it) at the cost of
-        ~1e-6 relative rounding in theta; the Gram matrices, their inverses and theta stay float64
+        ~1e-6 relative rounding in the targets, which an ill-conditioned Gram matrix magnifies in theta (and
+        which may differ between a run fitted alone and in a batch, as BLAS sums products of different
+        shapes in different orders); the Gram matrices, their inverses and theta stay float64
     """
 
     def __init__(
