@@ -53,6 +53,14 @@ def state_space_of(observation_space: spaces.Space) -> spaces.Box:
             )
     elif isinstance(observation_space, spaces.Box):
         state_space = observation_space
+    elif isinstance(observation_space, spaces.Discrete):
+        n, start = int(observation_space.n), int(observation_space.start)
+        raise ValueError(
+            f"observation_space must be a Box or a Dict with a 'state' Box and a 'task' Discrete, got "
+            f"{observation_space}: give the state index as a Box of integers, on which the default features "
+            f"are one per state (gymnasium.wrappers.TransformObservation(env, lambda s: np.array([s]), "
+            f"Box({start}, {start + n - 1}, (1,), np.int64)))"
+        )
     else:
         raise ValueError(
             "observation_space must be a Box or a Dict with a 'state' Box and a 'task' Discrete, "
@@ -60,7 +68,10 @@ def state_space_of(observation_space: spaces.Space) -> spaces.Box:
         )
     assert isinstance(state_space, spaces.Box)
     if len(state_space.shape) != 1:
-        raise ValueError(f"the state Box must be one-dimensional (a vector), got shape {state_space.shape}")
+        raise ValueError(
+            f"the state Box must be one-dimensional (a vector), got shape {state_space.shape}: flatten it "
+            "(gymnasium.wrappers.FlattenObservation)"
+        )
     return state_space
 
 
@@ -110,12 +121,12 @@ def split_observation(
         does not match the states', or (with ``require_finite``) states that are not finite
     """
     if isinstance(obs, dict):
-        states = _as_array(obs["state"]).reshape(-1, state_dim)
+        states = _states_of(_as_array(obs["state"]), state_dim)
         tasks = _as_array(obs["task"]).reshape(-1)
         if len(tasks) == 1 and len(states) > 1:  # one task for a batch of states
             tasks = np.repeat(tasks, len(states))
     else:
-        states = _as_array(obs).reshape(-1, state_dim)
+        states = _states_of(_as_array(obs), state_dim)
         tasks = np.zeros(len(states), dtype=np.int64)
     if len(tasks) != len(states):
         raise ValueError(f"an observation has {len(states)} states but {len(tasks)} tasks")
@@ -221,6 +232,20 @@ class StateBoxMonitor:
                 StateOutsideBoxWarning,
                 stacklevel=stacklevel + 1,
             )
+
+
+def _states_of(states: np.ndarray, state_dim: int) -> np.ndarray:
+    """
+    States of shape (d,) or (n, d) (or a scalar, when d = 1) as (n, d); any other shape is refused, which
+    reshaping would cut into states.
+    """
+    vector_or_batch = states.ndim in (1, 2) and states.shape[-1] == state_dim
+    if not (vector_or_batch or (states.ndim == 0 and state_dim == 1)):
+        raise ValueError(
+            f"unexpected state shape {states.shape}: the state Box is ({state_dim},), so a state is "
+            f"({state_dim},) and a batch of them (n, {state_dim})"
+        )
+    return states.reshape(-1, state_dim)
 
 
 def _as_array(value: Any) -> np.ndarray:

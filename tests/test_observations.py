@@ -77,6 +77,62 @@ def test_a_task_out_of_range_is_refused_when_the_count_is_given(task):
     split_observation(obs, 3)  # without the count: not checked
 
 
+@pytest.mark.parametrize(
+    "obs",
+    [np.zeros(2), np.zeros(6), np.zeros((2, 2, 3)), {"state": np.zeros(4), "task": 0}],
+    ids=["short", "two states flat", "3-d", "dict"],
+)
+def test_a_state_of_another_shape_is_refused_not_cut_into_states(obs):
+    """(6,) for 3-D states used to be read as two states, silently."""
+    with pytest.raises(
+        ValueError, match=r"unexpected state shape .*a state is \(3,\) and a batch of them \(n, 3\)"
+    ):
+        split_observation(obs, 3)
+
+
+def test_a_scalar_is_a_state_when_states_are_1_d():
+    states, _ = split_observation(np.float32(0.5), 1)
+    np.testing.assert_array_equal(states, [[0.5]])
+
+
+def test_discrete_and_multidimensional_observations_are_refused_with_the_wrapper_to_use():
+    """A tabular env's Discrete(n, start) state index is a 1-D Box of integers; an array Box is flattened."""
+    with pytest.raises(
+        ValueError,
+        match=r"Discrete\(4, start=1\): give the state index as a Box of integers.*"
+        r"Box\(1, 4, \(1,\), np.int64\)",
+    ):
+        state_space_of(spaces.Discrete(4, start=1))
+    with pytest.raises(
+        ValueError, match=r"got shape \(2, 2\): flatten it \(gymnasium.wrappers.FlattenObservation\)"
+    ):
+        state_space_of(spaces.Box(0, 1, (2, 2)))
+
+
+def test_a_tabular_env_given_as_a_box_of_integers_learns():
+    """The recipe of the Discrete refusal on deterministic FrozenLake: one feature per state, the goal in
+    every evaluation episode."""
+
+    def boxed(env):
+        return gym.wrappers.TransformObservation(
+            env, lambda s: np.array([s]), spaces.Box(0, env.observation_space.n - 1, (1,), np.int64)
+        )
+
+    model = TRLSD(
+        "LinearPolicy", boxed(gym.make("FrozenLake-v1", is_slippery=False)), seed=0, source_transitions=2000
+    )
+    assert model.features.n_features == 16
+    model.learn(2000)
+    env = boxed(gym.make("FrozenLake-v1", is_slippery=False))
+    state, _ = env.reset(seed=0)
+    rewards, done = [], False
+    while not done:
+        state, reward, terminated, truncated, _ = env.step(int(model.predict(state)[0]))
+        rewards.append(reward)
+        done = terminated or truncated
+    assert rewards[-1] == 1.0 and len(rewards) == 6  # the shortest path to the goal
+
+
 def test_the_state_space_and_task_count_of_box_and_dict_observations():
     assert state_space_of(STATE_BOX) is STATE_BOX and task_count_of(STATE_BOX) == 1
     assert state_space_of(multitask_space(spaces.Discrete(4))) is STATE_BOX
