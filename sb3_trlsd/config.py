@@ -37,7 +37,7 @@ from sb3_trlsd.reward_heads import (
     make_reward_head,
 )
 from sb3_trlsd.reward_timing import REWARD_TIMINGS, TransitionFeatures, input_box, input_widths
-from sb3_trlsd.task_learner import FIRST_FIT_RULES, TaskLearner
+from sb3_trlsd.task_learner import FIRST_FIT_RULES, OPTIMISM_RULES, TaskLearner
 
 __all__ = [
     "FEATURE_HEAD_NAMES",
@@ -103,6 +103,12 @@ def _widths(name: str, value: Widths, meaning: str) -> None:
     )
 
 
+def _one_of(name: str, value: Any, choices: Sequence[str]) -> None:
+    """Reject a setting that is not one of its names, naming it and them."""
+    if value not in choices:
+        raise ValueError(f"{name} must be one of {list(choices)}, got {value!r}")
+
+
 def check_discount(gamma: float) -> None:
     """
     Reject a discount factor outside (0, 1), naming it.
@@ -142,6 +148,8 @@ class TRLSDConfig:
     :param first_fit: when a task's Q is first fitted, one of ``FIRST_FIT_RULES``
     :param refit_growth: once the trigger has fired, a task's refit waits until its samples have grown by this
         fraction since its last refit (>= 0; 0: at once, the paper)
+    :param optimism: where the buffer is relabelled with R~ rather than R^, one of ``OPTIMISM_RULES``:
+        ``"always"`` (the paper) or ``"with_source"`` (once the buffer holds rows the task did not collect)
     :param tie_break: the greedy action among equal Q-values while learning, one of ``TIE_BREAKS``:
         ``"random"`` (seeded by the run's seed) or ``"first"``
     :param exploration_initial_eps: the epsilon-greedy rate at a task's first online step, in [0, 1]
@@ -178,6 +186,7 @@ class TRLSDConfig:
     update_ratio: float = 2.0
     first_fit: str = "first_step"
     refit_growth: float = 0.1
+    optimism: str = "always"
     tie_break: str = "random"
     exploration_initial_eps: float = 1.0
     exploration_final_eps: float = 0.0
@@ -225,13 +234,12 @@ class TRLSDConfig:
             ">= 0 (a fraction of the task's samples; 0 refits as soon as the trigger fires)",
             self.refit_growth,
         )
-        if self.tie_break not in TIE_BREAKS:
-            raise ValueError(f"tie_break must be one of {list(TIE_BREAKS)}, got {self.tie_break!r}")
+        _one_of("optimism", self.optimism, OPTIMISM_RULES)
+        _one_of("tie_break", self.tie_break, TIE_BREAKS)
         _probability("exploration_initial_eps", self.exploration_initial_eps)
         _probability("exploration_final_eps", self.exploration_final_eps)
         _integer("exploration_steps", self.exploration_steps, 0)
-        if self.fqi_stop not in STOP_RULES:
-            raise ValueError(f"fqi_stop must be one of {list(STOP_RULES)}, got {self.fqi_stop!r}")
+        _one_of("fqi_stop", self.fqi_stop, STOP_RULES)
         if self.fqi_tol is None:
             object.__setattr__(self, "fqi_tol", FQI_TOLS[self.fqi_stop])
         _require(
@@ -258,8 +266,7 @@ class TRLSDConfig:
                     "give rbf_sigma (a fraction of the box) or rbf_overlap (of the spacing), not both"
                 )
         _integer("fqi_max_iterations", self.fqi_max_iterations, 1, none_allowed=True)
-        if self.similarity not in SIMILARITIES:
-            raise ValueError(f"similarity must be one of {list(SIMILARITIES)}, got {self.similarity!r}")
+        _one_of("similarity", self.similarity, SIMILARITIES)
         if self.reward_head == "bernstein" and self.similarity != "state":
             raise ValueError(
                 f"similarity must be 'state' with reward_head='bernstein' (its weights are eq. 6's), "
@@ -303,6 +310,7 @@ class TRLSDConfig:
             "update_ratio": self.update_ratio,
             "first_fit": self.first_fit,
             "refit_growth": self.refit_growth,
+            "optimism": self.optimism,
             "tie_break": self.tie_break,
             "exploration_initial_eps": self.exploration_initial_eps,
             "exploration_final_eps": self.exploration_final_eps,
@@ -540,7 +548,7 @@ class LearnerBuilder:
     ) -> TaskLearner:
         """
         The learning state of ``task`` with no samples: its reward head (``new_reward_head``), the config's
-        ``update_ratio``, ``first_fit`` and ``refit_growth``, and the reward timing.
+        ``update_ratio``, ``first_fit``, ``refit_growth`` and ``optimism``, and the reward timing.
 
         :param task: the task
         :param reward_fn: see ``new_reward_head``
@@ -555,4 +563,5 @@ class LearnerBuilder:
             first_fit=config.first_fit,
             reward_timing=self.reward_timing,
             refit_growth=config.refit_growth,
+            optimism=config.optimism,
         )

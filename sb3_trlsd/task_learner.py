@@ -18,12 +18,18 @@ from sb3_trlsd.buffers import BufferCursor, SharedDynamicsReplayBuffer
 from sb3_trlsd.reward_heads import RewardHead, RewardTracker
 from sb3_trlsd.reward_timing import REWARD_TIMINGS, rewarded_inputs
 
-__all__ = ["FIRST_FIT_RULES", "TaskLearner"]
+__all__ = ["FIRST_FIT_RULES", "OPTIMISM_RULES", "TaskLearner"]
 
 # When a task's Q-function is first fitted (the paper does not say): before its first action, on R~ of no
 # sample (the optimism of an empty head); or once its first sample (and reward) is in, acting before that
 # with the unfitted Q (every action ties: the policy's argmax takes the first).
 FIRST_FIT_RULES = ("first_step", "first_sample")
+
+# Where the buffer is relabelled with the optimistic R~ rather than the estimate R^: always (the paper), or
+# once the buffer holds rows the task did not collect online (a source, other tasks' rows). Fitted-Q sees
+# the buffer's rows only: with none but the task's own, a bonus or a draw values the rows it visited against
+# unvisited ones left at 0, which keeps the greedy policy among the visited.
+OPTIMISM_RULES = ("always", "with_source")
 
 
 class TaskLearner:
@@ -42,6 +48,8 @@ class TaskLearner:
         this fraction since its last refit (at least one new sample); 0 refits as soon as it fires (the
         paper). Refits are then at most about 1 / refit_growth + ln(n) / ln(1 + refit_growth) over n samples,
         the lazy updates of rarely-switching optimism (Abbasi-Yadkori et al., 2011)
+    :param optimism: where the buffer is relabelled with R~ rather than R^, one of ``OPTIMISM_RULES``:
+        ``"always"`` (the paper) or ``"with_source"`` (once the buffer holds rows the task did not collect)
     """
 
     def __init__(
@@ -52,6 +60,7 @@ class TaskLearner:
         first_fit: str = "first_step",
         reward_timing: str = "start_state",
         refit_growth: float = 0.0,
+        optimism: str = "always",
     ):
         if not update_ratio > 1:
             raise ValueError(
@@ -63,6 +72,9 @@ class TaskLearner:
             raise ValueError(f"reward_timing must be one of {list(REWARD_TIMINGS)}, got {reward_timing!r}")
         if not (np.isfinite(refit_growth) and refit_growth >= 0):
             raise ValueError(f"refit_growth must be >= 0 (a fraction of the samples), got {refit_growth}")
+        if optimism not in OPTIMISM_RULES:
+            raise ValueError(f"optimism must be one of {list(OPTIMISM_RULES)}, got {optimism!r}")
+        self.optimism = optimism
         self.refit_growth = float(refit_growth)
         self.first_fit = first_fit
         self.reward_timing = reward_timing
@@ -154,7 +166,8 @@ class TaskLearner:
     def relabelled_rewards(self, buffer: SharedDynamicsReplayBuffer) -> np.ndarray:
         """
         R~_tau at the rewarded input (``reward_timing``) of every transition of the buffer, oldest first (Psi
-        of section 2); between two calls only the new rows and the head's new samples are folded in.
+        of section 2); between two calls only the new rows and the head's new samples are folded in. Under
+        ``optimism="with_source"``, R^_tau while every row of the buffer is one of the task's own samples.
 
         :param buffer: the shared buffer
         :return: rewards (n,)
@@ -167,6 +180,8 @@ class TaskLearner:
             self._relabelling = self.head.tracker(states)
         else:
             self._relabelling.extend(states)
+        if self.optimism == "with_source" and self._relabelling.n_states <= self.samples:
+            return self._relabelling.estimate()
         return self._relabelling.optimistic()
 
     def refitted(self, n_rows: int) -> None:

@@ -111,6 +111,12 @@ class TRLSD(OffPolicyAlgorithm):
         fraction since its last refit: refits are then at most ~1 / refit_growth + ln(n) / ln(1 +
         refit_growth) over n samples (rarely-switching optimism's lazy updates), so their cost per step
         falls as a run goes on; 0 refits as soon as the trigger fires (the paper's Algorithm 1)
+    :param optimism: where the shared buffer is relabelled with the optimistic R~ rather than the estimate
+        R^: ``"always"`` (the paper), or ``"with_source"``, once the buffer holds rows the task did not
+        collect itself (a source, other tasks' rows). Fitted-Q sees the buffer's rows only, so optimism
+        reaches the Q-function through the rows it relabels: learning from scratch, a bonus or a posterior
+        draw values the rows visited against unvisited ones left at 0 and keeps the greedy policy among the
+        visited, where R^ (0 everywhere before a reward) leaves it to the tie-break and exploration
     :param tie_break: the action taken among equal Q-values while learning (``learn``, ``act``, ``predict``
         with ``deterministic=False``): ``"random"``, one of them drawn with a generator seeded by ``seed``
         (a Q that is 0 everywhere, as before any reward is seen with kappa = 0, then explores at random
@@ -156,8 +162,8 @@ class TRLSD(OffPolicyAlgorithm):
     :param reward_fn: ``reward_fn(states (n, d), task) -> (n,)``, the expected reward for the ``"known"``
         head; by default the env's ``expected_reward``. Not saved: give it again to ``load``
     :param reward_head_kwargs: extra arguments of the named reward heads (e.g. ``w_floor``, ``r_max``;
-        ``ridge`` of the linear-posterior heads, ``seed`` of ``"thompson"``, ``reward_range`` of
-        ``"bernstein"``)
+        ``ridge`` of the linear-posterior heads, ``seed`` and ``kappa_scale`` of ``"thompson"``
+        (``"observed"``: kappa in units of the largest |reward| seen), ``reward_range`` of ``"bernstein"``)
     :param reward_timing: what of a transition its reward belongs to, which the reward heads learn and
         relabel at: ``"start_state"`` (the paper's R_tau(s)), ``"next_state"`` (the state it arrives at:
         e.g. a goal paid on arrival), ``"transition"`` (the pair (s, s'), whose features are Phi(s) and
@@ -213,6 +219,7 @@ class TRLSD(OffPolicyAlgorithm):
         update_ratio: float = 2.0,
         first_fit: str = "first_step",
         refit_growth: float = 0.1,
+        optimism: str = "always",
         tie_break: str = "random",
         exploration_initial_eps: float = 1.0,
         exploration_final_eps: float = 0.0,
@@ -258,6 +265,7 @@ class TRLSD(OffPolicyAlgorithm):
             update_ratio=update_ratio,
             first_fit=first_fit,
             refit_growth=refit_growth,
+            optimism=optimism,
             tie_break=tie_break,
             exploration_initial_eps=exploration_initial_eps,
             exploration_final_eps=exploration_final_eps,

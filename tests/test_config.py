@@ -94,10 +94,13 @@ def test_the_default_features_follow_the_box_and_the_dimension():
 
 
 class GridWalk(gym.Env):
-    """A 6 x 4 grid world whose states are a Box of integers, the reward on the cell (5, 3)."""
+    """A W x H grid world (6 x 4 by default) whose states are a Box of integers, paid on the far corner."""
 
-    observation_space = spaces.Box(0, np.array([5, 3]), dtype=np.int64)
     action_space = spaces.Discrete(4)
+
+    def __init__(self, width=6, height=4):
+        self.corner = np.array([width - 1, height - 1])
+        self.observation_space = spaces.Box(0, self.corner, dtype=np.int64)
 
     def reset(self, *, seed=None, options=None):
         super().reset(seed=seed)
@@ -106,8 +109,19 @@ class GridWalk(gym.Env):
 
     def step(self, action):
         move = np.array([[1, 0], [-1, 0], [0, 1], [0, -1]])[action]
-        self.cell = np.clip(self.cell + move, 0, [5, 3])
-        return self.cell.copy(), float(np.all(self.cell == [5, 3])), False, False, {}
+        self.cell = np.clip(self.cell + move, 0, self.corner)
+        return self.cell.copy(), float(np.all(self.cell == self.corner)), False, False, {}
+
+
+def greedy_paid_steps(model, env, steps=30):
+    """The steps paid to the model's greedy policy in one episode of ``steps``."""
+    state, _ = env.reset()
+    paid = 0
+    for _ in range(steps):
+        action, _ = model.predict(state, deterministic=True)
+        state, reward, *_ = env.step(int(action))
+        paid += int(reward)
+    return paid
 
 
 def test_integer_states_get_one_rbf_per_cell_and_learn():
@@ -119,14 +133,39 @@ def test_integer_states_get_one_rbf_per_cell_and_learn():
     phi = model.features(np.array([[2.0, 1.0]]))
     assert phi.argmax() == 2 * 4 + 1 and phi.max() == pytest.approx(1.0)
     model.learn(600)
-    env = GridWalk()
-    state, _ = env.reset()
-    rewards = []
-    for _ in range(30):
-        action, _ = model.predict(state, deterministic=True)
-        state, reward, *_ = env.step(int(action))
-        rewards.append(reward)
-    assert sum(rewards) >= 10  # a random walk earns ~1 in 30 steps
+    assert greedy_paid_steps(model, GridWalk()) >= 10  # a random walk earns ~1 in 30 steps
+
+
+SOURCE_DRAWS = {"reward_head": "thompson", "kappa": 0.01, "optimism": "with_source"}
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_posterior_draws_with_source_optimism_explore_over_a_source_and_walk_from_scratch(seed):
+    """
+    Thompson draws relabel the buffer only once it holds rows the task did not collect: over random source
+    transitions of a 10 x 6 grid they lead the greedy policy to the corner 14 steps away (paid on 17 of 30
+    steps); from scratch on the 6 x 4 grid R^ relabels it, the tie-break walks, and the corner is found on the
+    seeds where draws over the task's own rows alone stay among them.
+    """
+    kwargs = {**SOURCE_DRAWS, "reward_head_kwargs": {"kappa_scale": "observed"}, "seed": seed}
+    large = GridWalk(10, 6)
+    model = TRLSD("LinearPolicy", gym.wrappers.TimeLimit(large, 30), **kwargs)
+    rng = np.random.default_rng(seed)
+    states = rng.integers(0, large.corner + 1, size=(2000, 2))
+    actions = rng.integers(0, 4, size=2000)
+    next_states = np.clip(states + np.array([[1, 0], [-1, 0], [0, 1], [0, -1]])[actions], 0, large.corner)
+    no = np.zeros(2000, dtype=bool)
+    model.load_transitions(
+        Transitions(states, actions, next_states, np.zeros(2000), np.zeros(2000, int), no, no)
+    )
+    model.learn(1000)
+    assert greedy_paid_steps(model, GridWalk(10, 6)) == 17
+    scratch = TRLSD("LinearPolicy", gym.wrappers.TimeLimit(GridWalk(), 30), **kwargs)
+    scratch.learn(600)
+    assert greedy_paid_steps(scratch, GridWalk()) == 23
+    always = TRLSD("LinearPolicy", gym.wrappers.TimeLimit(GridWalk(), 30), **{**kwargs, "optimism": "always"})
+    always.learn(600)
+    assert greedy_paid_steps(always, GridWalk()) == 0
 
 
 def test_the_tabular_head_takes_a_user_discretisation_and_the_grid_by_default():

@@ -188,6 +188,26 @@ def test_thompson_with_zero_scale_is_the_posterior_mean():
     assert head._sampled_weights is None
 
 
+def test_thompson_scaled_by_the_observed_rewards_scales_its_draws_with_them():
+    """
+    kappa_scale="observed": v = kappa x the largest |reward| seen, so rewards times c give R~ times c (the
+    same normals); before a nonzero reward v is kappa, and kappa_scale="reward" keeps v = kappa throughout.
+    """
+    states, rewards = line_samples(20, seed=7)
+    queries = np.linspace(0, 1, 9).reshape(-1, 1)
+    draws = {}
+    for c in (1.0, 100.0):
+        head = fed(
+            ThompsonRidgeRewardHead(LINE, kappa=0.2, seed=5, kappa_scale="observed"), states, c * rewards
+        )
+        assert head.posterior_scale == pytest.approx(0.2 * c * np.abs(rewards).max())
+        draws[c] = head.optimistic(queries)
+    np.testing.assert_allclose(draws[100.0], 100.0 * draws[1.0], rtol=RTOL)
+    silent = fed(ThompsonRidgeRewardHead(LINE, kappa=0.2, kappa_scale="observed"), states, 0 * rewards)
+    in_reward_units = fed(ThompsonRidgeRewardHead(LINE, kappa=0.2), states, 100.0 * rewards)
+    assert silent.posterior_scale == 0.2 and in_reward_units.posterior_scale == 0.2
+
+
 # ------------------------------------------------------------------------------- UCB-V, kernel-weighted
 def test_bernstein_head_is_the_kernel_mean_and_the_empirical_bernstein_width():
     """On 4 samples, R^ and CI are the kernel-weighted mean and UCB-V's width written out by hand."""
@@ -269,6 +289,9 @@ def test_copies_answer_and_learn_as_the_original(make_head, how):
         pytest.param(lambda: RidgePosteriorRewardHead(LINE, kappa=-1.0), "kappa", id="kappa-negative"),
         pytest.param(lambda: ThompsonRidgeRewardHead(LINE, seed=-1), "seed", id="seed-negative"),
         pytest.param(lambda: ThompsonRidgeRewardHead(LINE, seed=1.5), "seed", id="seed-float"),
+        pytest.param(
+            lambda: ThompsonRidgeRewardHead(LINE, kappa_scale="max"), "kappa_scale", id="kappa-scale"
+        ),
         pytest.param(lambda: BernsteinRewardHead(sigma=0.0), "sigma", id="sigma-0"),
         pytest.param(lambda: BernsteinRewardHead(sigma=np.inf), "sigma", id="sigma-inf"),
         pytest.param(lambda: BernsteinRewardHead(reward_range=-1.0), "reward_range", id="range-negative"),

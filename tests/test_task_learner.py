@@ -1,9 +1,15 @@
-"""When a task is due for a refit: the trigger of section 3, and the lazy refits of ``refit_growth``."""
+"""
+When a task is due for a refit (the trigger of section 3, the lazy refits of ``refit_growth``), and where
+its relabelling is optimistic (``optimism``).
+"""
 
 import numpy as np
 import pytest
+from gymnasium import spaces
 
+from sb3_trlsd.buffers import SharedDynamicsReplayBuffer
 from sb3_trlsd.config import TRLSDConfig
+from sb3_trlsd.data import Transitions
 from sb3_trlsd.feature_maps import RBFGrid
 from sb3_trlsd.reward_heads import make_reward_head
 from sb3_trlsd.task_learner import TaskLearner
@@ -91,3 +97,45 @@ def test_a_fired_trigger_is_kept_until_the_wait_is_over():
 def test_a_bad_refit_growth_is_refused_by_name(value):
     with pytest.raises(ValueError, match="refit_growth"):
         TRLSDConfig(refit_growth=value)
+
+
+def rows(states: np.ndarray) -> Transitions:
+    n = len(states)
+    no = np.zeros(n, dtype=bool)
+    return Transitions(states, np.zeros(n, np.int64), states, np.zeros(n), np.zeros(n, np.int64), no, no)
+
+
+@pytest.mark.parametrize("head_name", ["thompson", "ridge"])
+def test_with_source_the_relabelling_is_optimistic_once_the_buffer_holds_rows_the_task_did_not_collect(
+    head_name,
+):
+    """
+    optimism="with_source": R^ while every row of the buffer is one of the task's own samples, R~ once a row
+    it did not collect (a source's) is in; optimism="always" (the paper) relabels with R~ throughout.
+    """
+    grid = RBFGrid(low=(0.0, 0.0), high=(1.0, 1.0), n_per_dim=3, sigma=0.3)
+    rng = np.random.default_rng(0)
+    own, source = rng.uniform(size=(6, 2)), rng.uniform(size=(1, 2))
+    learners = {}
+    for optimism in ("with_source", "always"):
+        seed = {"seed": 0} if head_name == "thompson" else {}
+        head = make_reward_head(head_name, features=grid, kappa=0.5, sigma=0.2, **seed)
+        learners[optimism] = TaskLearner(0, head, update_ratio=2.0, optimism=optimism)
+    buffer = SharedDynamicsReplayBuffer(100, spaces.Box(0, 1, (2,)), spaces.Discrete(1), device="cpu")
+    buffer.add_transitions(rows(own))
+    for learner in learners.values():
+        for state in own:
+            learner.observe(state, 0, state, float(state[0]), n_rows=buffer.size())
+    scratch, stored = learners["with_source"], buffer.transitions().states  # as the buffer keeps them
+    np.testing.assert_allclose(scratch.relabelled_rewards(buffer), scratch.head.estimate(stored))
+    always = learners["always"].relabelled_rewards(buffer)
+    np.testing.assert_allclose(always, learners["always"].head.optimistic(stored))
+    assert not np.allclose(always, scratch.head.estimate(stored))
+    buffer.add_transitions(rows(source))
+    stored = buffer.transitions().states
+    np.testing.assert_allclose(scratch.relabelled_rewards(buffer), scratch.head.optimistic(stored))
+
+
+def test_a_bad_optimism_is_refused_by_name():
+    with pytest.raises(ValueError, match=r"optimism must be one of \['always', 'with_source'\]"):
+        TRLSDConfig(optimism="source")

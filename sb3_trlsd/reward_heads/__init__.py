@@ -154,7 +154,7 @@ def make_reward_head(
         default, log(max(|Xi_tau|, 2))); the heads without a log|Xi_tau| factor (known, posterior) ignore it
     :param kwargs: further arguments of the head (``ridge``, ``w_floor``, ``r_max``; ``cell_fn``,
         ``n_cells``, ``cells_per_dim``, ``allowed_cells``, ``unvisited_value`` for the tabular heads; ``seed``
-        for ``"thompson"``, ``reward_range`` for ``"bernstein"``)
+        and ``kappa_scale`` for ``"thompson"``, ``reward_range`` for ``"bernstein"``)
     :return: the head
     """
     rule = None if log_count is None else check_log_count_rule(log_count)

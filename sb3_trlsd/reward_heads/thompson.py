@@ -16,7 +16,11 @@ from sb3_trlsd.reward_heads.posterior import (
     sample_posterior_weights,
 )
 
-__all__ = ["ThompsonRidgeRewardHead"]
+__all__ = ["KAPPA_SCALES", "ThompsonRidgeRewardHead"]
+
+# What the posterior scale kappa is measured in: the env's reward units, or the largest |reward| the head
+# has seen (1 before any: until a reward is met, the greedy policy on a draw does not depend on its scale).
+KAPPA_SCALES = ("reward", "observed")
 
 
 class ThompsonRidgeRewardHead(RidgePosteriorRewardHead):
@@ -42,12 +46,19 @@ class ThompsonRidgeRewardHead(RidgePosteriorRewardHead):
 
     The uncertainty, the refit rule and the tracker are those of ``RidgePosteriorRewardHead``.
 
+    With ``kappa_scale="observed"`` the posterior scale is kappa times the largest |reward| the head has
+    seen (kappa alone before any nonzero reward), so that the draws, and the greedy policy on them, do not
+    change when the env's rewards are multiplied by a constant: before the first reward R~ = Phi . w~ is
+    v times a draw of scale 1, and a Q-function fitted on c R~ is c times the one fitted on R~.
+
     :param features: Phi, states (n, d) -> (n, k) (picklable, no lambda)
-    :param kappa: the posterior scale v, >= 0
+    :param kappa: the posterior scale v, >= 0, in the units ``kappa_scale`` says
     :param ridge: Tikhonov regularisation lambda, > 0
     :param seed: seed of the head's generator of draws (an int >= 0, or None for fresh entropy); every
         deep copy of a head starts from the same state, so copies for several tasks draw the same normals
     :param r_max: optional cap on R~
+    :param kappa_scale: one of ``KAPPA_SCALES``: ``"reward"`` (kappa in the env's reward units) or
+        ``"observed"`` (in units of the largest |reward| seen)
     """
 
     def __init__(
@@ -57,10 +68,15 @@ class ThompsonRidgeRewardHead(RidgePosteriorRewardHead):
         ridge: float = 1.0,
         seed: int | None = None,
         r_max: float | None = None,
+        kappa_scale: str = "reward",
     ):
         super().__init__(features, kappa=kappa, ridge=ridge, r_max=r_max)
         if seed is not None and not (isinstance(seed, (int, np.integer)) and seed >= 0):
             raise ValueError(f"seed must be an integer >= 0 or None (fresh entropy), got {seed!r}")
+        if kappa_scale not in KAPPA_SCALES:
+            raise ValueError(f"kappa_scale must be one of {list(KAPPA_SCALES)}, got {kappa_scale!r}")
+        self.kappa_scale = kappa_scale
+        self.largest_reward = 0.0  # the largest |reward| among the head's samples
         self.seed = None if seed is None else int(seed)
         self._rng = np.random.default_rng(self.seed)
         self._sampled_weights: np.ndarray | None = None  # w~ of the current draw, (k,)
@@ -68,7 +84,19 @@ class ThompsonRidgeRewardHead(RidgePosteriorRewardHead):
         self._redraw_after: int | None = None
 
     def _repr_items(self) -> list[str]:
-        return [*super()._repr_items(), f"seed={self.seed}"]
+        return [*super()._repr_items(), f"seed={self.seed}", f"kappa_scale={self.kappa_scale!r}"]
+
+    def _update(self, states: np.ndarray, rewards: np.ndarray) -> None:
+        super()._update(states, rewards)
+        if len(rewards):
+            self.largest_reward = max(self.largest_reward, float(np.abs(rewards).max()))
+
+    @property
+    def posterior_scale(self) -> float:
+        """v: kappa, times the largest |reward| seen under ``kappa_scale="observed"`` (once one is > 0)."""
+        if self.kappa_scale == "observed" and self.largest_reward > 0:
+            return self.kappa * self.largest_reward
+        return self.kappa
 
     def resample(self) -> None:
         """Spend the current draw: the next R~ asked for is a new draw from the posterior as of then."""
@@ -86,7 +114,7 @@ class ThompsonRidgeRewardHead(RidgePosteriorRewardHead):
             weights = self.weights
             mean = np.zeros(n_features) if weights is None else weights
             gram = self.ridge * np.eye(n_features) if self._gram is None else self._gram
-            self._sampled_weights = sample_posterior_weights(self._rng, mean, gram, self.kappa)[0]
+            self._sampled_weights = sample_posterior_weights(self._rng, mean, gram, self.posterior_scale)[0]
             self._redraw_after = None
         assert len(self._sampled_weights) == n_features
         return self._sampled_weights
