@@ -7,7 +7,8 @@ agent has visited: the draws give those rows small rewards of either sign, the r
 stay at Fitted-Q's initial 0, and the greedy policy stays among the visited rows whose draw is positive.
 The ridge head without optimism (the default) gives every row exactly 0 until a reward is met, every
 action ties, and the random tie-break walks the grid; the bonus of eq. 9 (``"ridge_posterior"``) is
-positive on every row, largest on the rows seen least.
+positive on every row, largest on the rows seen least. ``optimism="with_source"`` relabels with the draws
+only once the buffer holds rows the task did not collect, and R^ until then.
 
 This runs each head on a W x H grid of integers (reward 1 on the far corner, the start in the other,
 30-step episodes, ``learn(600)``), with no source or with random transitions over the whole grid (their
@@ -35,6 +36,12 @@ HEADS: dict[str, dict[str, Any]] = {  # name -> TRLSD settings
     "ridge_posterior, kappa = 0.003": {"reward_head": "ridge_posterior", "kappa": 0.003},
     "thompson, kappa = 0.003": {"reward_head": "thompson", "kappa": 0.003},
     "thompson, kappa = 0.003, redrawn each episode": {"reward_head": "thompson", "kappa": 0.003},
+    "thompson, kappa = 0.01 of the largest reward, optimism with_source": {
+        "reward_head": "thompson",
+        "kappa": 0.01,
+        "optimism": "with_source",
+        "reward_head_kwargs": {"kappa_scale": "observed"},
+    },
 }
 
 

@@ -51,6 +51,14 @@ CANDIDATES: dict[str, dict[str, Any]] = {
     "thompson,kappa=0.01": {"reward_head": "thompson", "kappa": 0.01},
     "thompson,kappa=0.003": {"reward_head": "thompson", "kappa": 0.003},
     "thompson,kappa=0.03": {"reward_head": "thompson", "kappa": 0.03},
+    # The draws in units of the largest reward seen, relabelling only once the buffer holds rows the task
+    # did not collect (R^ before): scale-free, and the ridge head's walk when learning from scratch.
+    "thompson,kappa=0.01,observed,with_source": {
+        "reward_head": "thompson",
+        "kappa": 0.01,
+        "optimism": "with_source",
+        "reward_head_kwargs": {"kappa_scale": "observed"},
+    },
     # Epsilon-greedy over each task's first steps: none (the greedy policy), or over other spans.
     "exploration_initial_eps=0": {"exploration_initial_eps": 0.0},
     "exploration_steps=100": {"exploration_steps": 100},

@@ -163,7 +163,8 @@ class TRLSD(OffPolicyAlgorithm):
         head; by default the env's ``expected_reward``. Not saved: give it again to ``load``
     :param reward_head_kwargs: extra arguments of the named reward heads (e.g. ``w_floor``, ``r_max``;
         ``ridge`` of the linear-posterior heads, ``seed`` and ``kappa_scale`` of ``"thompson"``
-        (``"observed"``: kappa in units of the largest |reward| seen), ``reward_range`` of ``"bernstein"``)
+        (``"observed"``: kappa in units of the largest absolute reward seen), ``reward_range`` of
+        ``"bernstein"``)
     :param reward_timing: what of a transition its reward belongs to, which the reward heads learn and
         relabel at: ``"start_state"`` (the paper's R_tau(s)), ``"next_state"`` (the state it arrives at:
         e.g. a goal paid on arrival), ``"transition"`` (the pair (s, s'), whose features are Phi(s) and

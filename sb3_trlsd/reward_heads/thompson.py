@@ -18,8 +18,9 @@ from sb3_trlsd.reward_heads.posterior import (
 
 __all__ = ["KAPPA_SCALES", "ThompsonRidgeRewardHead"]
 
-# What the posterior scale kappa is measured in: the env's reward units, or the largest |reward| the head
-# has seen (1 before any: until a reward is met, the greedy policy on a draw does not depend on its scale).
+# What the posterior scale kappa is measured in: the env's reward units, or the largest absolute reward the
+# head has seen (1 before any: until a reward is met, the greedy policy on a draw does not depend on its
+# scale).
 KAPPA_SCALES = ("reward", "observed")
 
 
@@ -46,10 +47,10 @@ class ThompsonRidgeRewardHead(RidgePosteriorRewardHead):
 
     The uncertainty, the refit rule and the tracker are those of ``RidgePosteriorRewardHead``.
 
-    With ``kappa_scale="observed"`` the posterior scale is kappa times the largest |reward| the head has
-    seen (kappa alone before any nonzero reward), so that the draws, and the greedy policy on them, do not
-    change when the env's rewards are multiplied by a constant: before the first reward R~ = Phi . w~ is
-    v times a draw of scale 1, and a Q-function fitted on c R~ is c times the one fitted on R~.
+    With ``kappa_scale="observed"`` the posterior scale is kappa times the largest absolute reward the head
+    has seen (kappa alone before any nonzero reward), so that the env's rewards multiplied by a constant c
+    give draws multiplied by c, and the same greedy policy (a Q-function fitted on c R~ is c times the one
+    fitted on R~); before the first reward R~ = Phi . w~ is v times a draw of scale 1, whatever v.
 
     :param features: Phi, states (n, d) -> (n, k) (picklable, no lambda)
     :param kappa: the posterior scale v, >= 0, in the units ``kappa_scale`` says
@@ -58,7 +59,7 @@ class ThompsonRidgeRewardHead(RidgePosteriorRewardHead):
         deep copy of a head starts from the same state, so copies for several tasks draw the same normals
     :param r_max: optional cap on R~
     :param kappa_scale: one of ``KAPPA_SCALES``: ``"reward"`` (kappa in the env's reward units) or
-        ``"observed"`` (in units of the largest |reward| seen)
+        ``"observed"`` (in units of the largest absolute reward seen)
     """
 
     def __init__(
@@ -76,7 +77,7 @@ class ThompsonRidgeRewardHead(RidgePosteriorRewardHead):
         if kappa_scale not in KAPPA_SCALES:
             raise ValueError(f"kappa_scale must be one of {list(KAPPA_SCALES)}, got {kappa_scale!r}")
         self.kappa_scale = kappa_scale
-        self.largest_reward = 0.0  # the largest |reward| among the head's samples
+        self.largest_reward = 0.0  # the largest absolute reward among the head's samples
         self.seed = None if seed is None else int(seed)
         self._rng = np.random.default_rng(self.seed)
         self._sampled_weights: np.ndarray | None = None  # w~ of the current draw, (k,)
@@ -93,7 +94,7 @@ class ThompsonRidgeRewardHead(RidgePosteriorRewardHead):
 
     @property
     def posterior_scale(self) -> float:
-        """v: kappa, times the largest |reward| seen under ``kappa_scale="observed"`` (once one is > 0)."""
+        """v: kappa, times the largest absolute reward seen under ``kappa_scale="observed"`` (once > 0)."""
         if self.kappa_scale == "observed" and self.largest_reward > 0:
             return self.kappa * self.largest_reward
         return self.kappa
