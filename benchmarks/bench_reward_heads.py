@@ -28,7 +28,7 @@ import numpy as np
 from gymnasium import spaces
 from stable_baselines3.common.callbacks import BaseCallback
 
-from sb3_trlsd import TRLSD, Transitions
+from sb3_trlsd import SOURCE_DRAWS, TRLSD, Transitions
 
 MOVES = np.array([[1, 0], [-1, 0], [0, 1], [0, -1]])
 HEADS: dict[str, dict[str, Any]] = {  # name -> TRLSD settings
@@ -36,12 +36,7 @@ HEADS: dict[str, dict[str, Any]] = {  # name -> TRLSD settings
     "ridge_posterior, kappa = 0.003": {"reward_head": "ridge_posterior", "kappa": 0.003},
     "thompson, kappa = 0.003": {"reward_head": "thompson", "kappa": 0.003},
     "thompson, kappa = 0.003, redrawn each episode": {"reward_head": "thompson", "kappa": 0.003},
-    "thompson, kappa = 0.01 of the largest reward, optimism with_source": {
-        "reward_head": "thompson",
-        "kappa": 0.01,
-        "optimism": "with_source",
-        "reward_head_kwargs": {"kappa_scale": "observed"},
-    },
+    "thompson, kappa = 0.01 of the largest reward, optimism with_source": SOURCE_DRAWS,
 }
 
 

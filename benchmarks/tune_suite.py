@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from sb3_trlsd import SOURCE_DRAWS
 from sb3_trlsd_lab.benchmarks.mo_suite.families import FAMILIES, available
 from sb3_trlsd_lab.benchmarks.mo_suite.peers import SETTABLE
 from sb3_trlsd_lab.benchmarks.mo_suite.suite import family_scale, suite_run
@@ -53,12 +54,7 @@ CANDIDATES: dict[str, dict[str, Any]] = {
     "thompson,kappa=0.03": {"reward_head": "thompson", "kappa": 0.03},
     # The draws in units of the largest reward seen, relabelling only once the buffer holds rows the task
     # did not collect (R^ before): scale-free, and the ridge head's walk when learning from scratch.
-    "thompson,kappa=0.01,observed,with_source": {
-        "reward_head": "thompson",
-        "kappa": 0.01,
-        "optimism": "with_source",
-        "reward_head_kwargs": {"kappa_scale": "observed"},
-    },
+    "thompson,kappa=0.01,observed,with_source": SOURCE_DRAWS,
     # Epsilon-greedy over each task's first steps: none (the greedy policy), or over other spans.
     "exploration_initial_eps=0": {"exploration_initial_eps": 0.0},
     "exploration_steps=100": {"exploration_steps": 100},

@@ -42,6 +42,7 @@ from sb3_trlsd.task_learner import FIRST_FIT_RULES, OPTIMISM_RULES, TaskLearner
 __all__ = [
     "FEATURE_HEAD_NAMES",
     "HEAD_NAMES",
+    "SOURCE_DRAWS",
     "STEP_HEAD_NAMES",
     "LearnerBuilder",
     "TRLSDConfig",
@@ -58,6 +59,16 @@ SIMILARITY_HEAD_NAMES = ("ridge", "bernstein")
 # The named heads that can learn the reward of a whole step (s, a, s'): on features, to which the action's
 # one-hot code is added, or with a similarity width along the action (``reward_timing``).
 STEP_HEAD_NAMES = ("ridge", "ridge_posterior", "thompson", "bernstein")
+# TRLSD's settings for posterior draws of the reward over a source (``TRLSD(policy, env, **SOURCE_DRAWS)``):
+# draws of scale 0.01 of the largest absolute reward seen, relabelling the buffer only once it holds rows
+# the task did not collect (R^ before, as the default ridge head). Where a reward is met rarely they explore
+# a source that the default's random walk does not reach (docs: the benchmarks page, the reward head).
+SOURCE_DRAWS: dict[str, Any] = {
+    "reward_head": "thompson",
+    "kappa": 0.01,
+    "optimism": "with_source",
+    "reward_head_kwargs": {"kappa_scale": "observed"},
+}
 FEATURES_SIMILARITY_SIGMA = 0.2  # eq. 7 compares feature vectors, whose scale is the features' own
 # Fitted-Q's tolerance by stopping rule when none is given. On the targets, an RMS change of 1e-3 of the
 # return scale: with gamma = 0.9 the targets are then within ~1% of the scale of their fixed point's, well

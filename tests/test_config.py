@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from gymnasium import spaces
 
-from sb3_trlsd import TRLSD, Transitions, collect_transitions
+from sb3_trlsd import SOURCE_DRAWS, TRLSD, Transitions, collect_transitions
 from sb3_trlsd.feature_maps import AdditiveRBF, RandomFourierFeatures, RBFGrid
 from sb3_trlsd.reward_heads import GridCells, KnownRewardHead, TabularRewardHead
 from tests.conftest import MAZE_ID
@@ -136,9 +136,6 @@ def test_integer_states_get_one_rbf_per_cell_and_learn():
     assert greedy_paid_steps(model, GridWalk()) >= 10  # a random walk earns ~1 in 30 steps
 
 
-SOURCE_DRAWS = {"reward_head": "thompson", "kappa": 0.01, "optimism": "with_source"}
-
-
 @pytest.mark.parametrize("seed", [0, 1])
 def test_posterior_draws_with_source_optimism_explore_over_a_source_and_walk_from_scratch(seed):
     """
@@ -147,7 +144,7 @@ def test_posterior_draws_with_source_optimism_explore_over_a_source_and_walk_fro
     steps); from scratch on the 6 x 4 grid R^ relabels it, the tie-break walks, and the corner is found on the
     seeds where draws over the task's own rows alone stay among them.
     """
-    kwargs = {**SOURCE_DRAWS, "reward_head_kwargs": {"kappa_scale": "observed"}, "seed": seed}
+    kwargs = {**SOURCE_DRAWS, "seed": seed}
     large = GridWalk(10, 6)
     model = TRLSD("LinearPolicy", gym.wrappers.TimeLimit(large, 30), **kwargs)
     rng = np.random.default_rng(seed)
