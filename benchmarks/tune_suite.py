@@ -55,6 +55,8 @@ CANDIDATES: dict[str, dict[str, Any]] = {
     # The draws in units of the largest reward seen, relabelling only once the buffer holds rows the task
     # did not collect (R^ before): scale-free, and the ridge head's walk when learning from scratch.
     "thompson,kappa=0.01,observed,with_source": SOURCE_DRAWS,
+    "thompson,kappa=0.003,observed,with_source": {**SOURCE_DRAWS, "kappa": 0.003},
+    "thompson,kappa=0.03,observed,with_source": {**SOURCE_DRAWS, "kappa": 0.03},
     # Epsilon-greedy over each task's first steps: none (the greedy policy), or over other spans.
     "exploration_initial_eps=0": {"exploration_initial_eps": 0.0},
     "exploration_steps=100": {"exploration_steps": 100},
