@@ -101,9 +101,7 @@ def main() -> None:
     )
     parser.add_argument("--seeds", type=int, default=8, help="seeds 0..N-1 per head and source")
     parser.add_argument("--grid", type=int, nargs=2, default=(6, 4), metavar=("W", "H"), help="grid size")
-    parser.add_argument(
-        "--source", type=int, default=1000, help="random source transitions of the second row"
-    )
+    parser.add_argument("--source", type=int, default=1000, help="random source transitions")
     parser.add_argument("--steps", type=int, default=600, help="online steps")
     args = parser.parse_args()
 

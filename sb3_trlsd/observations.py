@@ -53,18 +53,18 @@ def state_space_of(observation_space: spaces.Space) -> spaces.Box:
             )
     elif isinstance(observation_space, spaces.Box):
         state_space = observation_space
-    elif isinstance(observation_space, spaces.Discrete):
-        n, start = int(observation_space.n), int(observation_space.start)
-        raise ValueError(
-            f"observation_space must be a Box or a Dict with a 'state' Box and a 'task' Discrete, got "
-            f"{observation_space}: give the state index as a Box of integers, on which the default features "
-            f"are one per state (gymnasium.wrappers.TransformObservation(env, lambda s: np.array([s]), "
-            f"Box({start}, {start + n - 1}, (1,), np.int64)))"
-        )
     else:
+        hint = ""
+        if isinstance(observation_space, spaces.Discrete):  # a tabular env's state index
+            first, last = int(observation_space.start), int(observation_space.start + observation_space.n - 1)
+            hint = (
+                ": give the state index as a Box of integers, on which the default features are one per "
+                "state (gymnasium.wrappers.TransformObservation(env, lambda s: np.array([s]), "
+                f"Box({first}, {last}, (1,), np.int64)))"
+            )
         raise ValueError(
             "observation_space must be a Box or a Dict with a 'state' Box and a 'task' Discrete, "
-            f"got {observation_space}"
+            f"got {observation_space}{hint}"
         )
     assert isinstance(state_space, spaces.Box)
     if len(state_space.shape) != 1:
