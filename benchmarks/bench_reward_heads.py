@@ -5,10 +5,11 @@ rows it relabels. Over a source that covers the dynamics, the draws make unvisit
 rewards and the greedy policy goes to try them. Learning from scratch, the buffer holds only what the
 agent has visited: the draws give those rows small rewards of either sign, the rows it has not visited
 stay at Fitted-Q's initial 0, and the greedy policy stays among the visited rows whose draw is positive.
-The ridge head without optimism (the default) gives every row exactly 0 until a reward is met, every
+The ridge head without optimism gives every row exactly 0 until a reward is met, every
 action ties, and the random tie-break walks the grid; the bonus of eq. 9 (``"ridge_posterior"``) is
 positive on every row, largest on the rows seen least. ``optimism="with_source"`` relabels with the draws
-only once the buffer holds rows the task did not collect, and R^ until then.
+only once the buffer holds rows the task did not collect, and R^ until then: the defaults, with draws
+in units of the largest reward seen.
 
 This runs each head on a W x H grid of integers (reward 1 on the far corner, the start in the other,
 30-step episodes, ``learn(600)``), with no source or with random transitions over the whole grid (their
@@ -28,15 +29,20 @@ import numpy as np
 from gymnasium import spaces
 from stable_baselines3.common.callbacks import BaseCallback
 
-from sb3_trlsd import SOURCE_DRAWS, TRLSD, Transitions
+from sb3_trlsd import TRLSD, Transitions
 
 MOVES = np.array([[1, 0], [-1, 0], [0, 1], [0, -1]])
+DRAWS_IN_REWARD_UNITS = {
+    "reward_head": "thompson",
+    "optimism": "always",
+    "reward_head_kwargs": {"kappa_scale": "reward"},
+}
 HEADS: dict[str, dict[str, Any]] = {  # name -> TRLSD settings
-    "ridge, kappa = 0 (the defaults)": {},
+    "ridge, kappa = 0": {"reward_head": "ridge"},
     "ridge_posterior, kappa = 0.003": {"reward_head": "ridge_posterior", "kappa": 0.003},
-    "thompson, kappa = 0.003": {"reward_head": "thompson", "kappa": 0.003},
-    "thompson, kappa = 0.003, redrawn each episode": {"reward_head": "thompson", "kappa": 0.003},
-    "thompson, kappa = 0.01 of the largest reward, optimism with_source": SOURCE_DRAWS,
+    "thompson, kappa = 0.003": {**DRAWS_IN_REWARD_UNITS, "kappa": 0.003},
+    "thompson, kappa = 0.003, redrawn each episode": {**DRAWS_IN_REWARD_UNITS, "kappa": 0.003},
+    "thompson, kappa = 0.01 of the largest reward, optimism with_source (the defaults)": {},
 }
 
 

@@ -5,7 +5,6 @@ Importing the package registers the maze, ``TRLSD/SharedDynamicsMaze-v0``.
 
 import sb3_trlsd_envs  # noqa: F401  (registers TRLSD/SharedDynamicsMaze-v0)
 from sb3_trlsd.buffers import SharedDynamicsReplayBuffer
-from sb3_trlsd.config import SOURCE_DRAWS
 from sb3_trlsd.data import Transitions, collect_transitions
 from sb3_trlsd.feature_maps import FeatureMap, RandomFourierFeatures, RBFGrid
 from sb3_trlsd.policies import LinearPolicy, MlpPolicy
@@ -23,7 +22,6 @@ from sb3_trlsd.trlsd import TRLSD
 from sb3_trlsd.version import __version__
 
 __all__ = [
-    "SOURCE_DRAWS",
     "TRLSD",
     "FeatureMap",
     "GridCells",

@@ -41,8 +41,8 @@ from sb3_trlsd.task_learner import FIRST_FIT_RULES, OPTIMISM_RULES, TaskLearner
 
 __all__ = [
     "FEATURE_HEAD_NAMES",
+    "HEAD_DEFAULTS",
     "HEAD_NAMES",
-    "SOURCE_DRAWS",
     "STEP_HEAD_NAMES",
     "LearnerBuilder",
     "TRLSDConfig",
@@ -59,16 +59,16 @@ SIMILARITY_HEAD_NAMES = ("ridge", "bernstein")
 # The named heads that can learn the reward of a whole step (s, a, s'): on features, to which the action's
 # one-hot code is added, or with a similarity width along the action (``reward_timing``).
 STEP_HEAD_NAMES = ("ridge", "ridge_posterior", "thompson", "bernstein")
-# TRLSD's settings for posterior draws of the reward over a source (``TRLSD(policy, env, **SOURCE_DRAWS)``):
-# draws of scale 0.01 of the largest absolute reward seen, relabelling the buffer only once it holds rows
-# the task did not collect (R^ before, as the default ridge head). Where a reward is met rarely they explore
-# a source that the default's random walk does not reach (docs: the benchmarks page, the reward head).
-SOURCE_DRAWS: dict[str, Any] = {
-    "reward_head": "thompson",
-    "kappa": 0.01,
-    "optimism": "with_source",
-    "reward_head_kwargs": {"kappa_scale": "observed"},
+# The settings a head's name gives when they are left None. Posterior draws (``"thompson"``, the default
+# head) of scale 0.01 of the largest absolute reward seen, relabelling the buffer only once it holds rows
+# the task did not collect (R^ before, so that a task learnt from scratch walks as the plain estimate
+# does): over a source they explore where a reward is rare, whatever the reward units (docs: the
+# benchmarks page, the reward head). Every other head: the paper's, no optimism unless kappa is given, R~
+# relabelling every row.
+HEAD_DEFAULTS: dict[str, dict[str, Any]] = {
+    "thompson": {"kappa": 0.01, "optimism": "with_source", "kappa_scale": "observed"},
 }
+OTHER_HEAD_DEFAULTS: dict[str, Any] = {"kappa": 0.0, "optimism": "always"}
 FEATURES_SIMILARITY_SIGMA = 0.2  # eq. 7 compares feature vectors, whose scale is the features' own
 # Fitted-Q's tolerance by stopping rule when none is given. On the targets, an RMS change of 1e-3 of the
 # return scale: with gamma = 0.9 the targets are then within ~1% of the scale of their fixed point's, well
@@ -120,6 +120,18 @@ def _one_of(name: str, value: Any, choices: Sequence[str]) -> None:
         raise ValueError(f"{name} must be one of {list(choices)}, got {value!r}")
 
 
+def head_defaults(reward_head: str | RewardHead) -> dict[str, Any]:
+    """
+    The settings a reward head takes when they are left None: ``HEAD_DEFAULTS`` of its name, else
+    ``OTHER_HEAD_DEFAULTS`` (a ``RewardHead`` instance included).
+
+    :param reward_head: a head name or a ``RewardHead``
+    :return: ``kappa`` and ``optimism`` (and ``kappa_scale`` of the ``"thompson"`` head)
+    """
+    named = HEAD_DEFAULTS.get(reward_head) if isinstance(reward_head, str) else None
+    return dict(named or OTHER_HEAD_DEFAULTS)
+
+
 def check_discount(gamma: float) -> None:
     """
     Reject a discount factor outside (0, 1), naming it.
@@ -150,7 +162,8 @@ class TRLSDConfig:
     Bad values raise a ``ValueError`` naming the setting when the config is made.
 
     :param reward_head: a name of ``HEAD_NAMES`` or a ``RewardHead`` copied for each task
-    :param kappa: optimism (eq. 9, 10), in reward units; 0 is the non-optimistic method
+    :param kappa: optimism (eq. 9, 10), in reward units (the ``"thompson"`` head's: in the units of its
+        ``kappa_scale``); 0 is the non-optimistic method (None: the head's, ``head_defaults``)
     :param sigma: width of the similarity in W (eq. 8): for eq. 6 a fraction of the state box, one or one per
         dimension (None: ``default_kernel_width(d)``); for eq. 7 a distance between feature vectors
         (None: 0.2)
@@ -161,6 +174,7 @@ class TRLSDConfig:
         fraction since its last refit (>= 0; 0: at once, the paper)
     :param optimism: where the buffer is relabelled with R~ rather than R^, one of ``OPTIMISM_RULES``:
         ``"always"`` (the paper) or ``"with_source"`` (once the buffer holds rows the task did not collect)
+        (None: the head's, ``head_defaults``)
     :param tie_break: the greedy action among equal Q-values while learning, one of ``TIE_BREAKS``:
         ``"random"`` (seeded by the run's seed) or ``"first"``
     :param exploration_initial_eps: the epsilon-greedy rate at a task's first online step, in [0, 1]
@@ -190,14 +204,14 @@ class TRLSDConfig:
         ``STEP_HEAD_NAMES``, and ``"next_state"`` for the others)
     """
 
-    reward_head: str | RewardHead = "ridge"
-    kappa: float = 0.0
+    reward_head: str | RewardHead = "thompson"
+    kappa: float | None = None
     sigma: Widths = None
     similarity: str = "state"
     update_ratio: float = 2.0
     first_fit: str = "first_step"
     refit_growth: float = 0.1
-    optimism: str = "always"
+    optimism: str | None = None
     tie_break: str = "random"
     exploration_initial_eps: float = 1.0
     exploration_final_eps: float = 0.0
@@ -216,13 +230,21 @@ class TRLSDConfig:
     reward_timing: str = "auto"
 
     def __post_init__(self) -> None:
-        # A copy: the caller's dict is theirs (and a frozen config is not changed through it).
-        object.__setattr__(self, "reward_head_kwargs", dict(self.reward_head_kwargs or {}))
         if not isinstance(self.reward_head, RewardHead) and self.reward_head not in HEAD_NAMES:
             raise ValueError(
                 f"reward_head must be one of {list(HEAD_NAMES)} or a RewardHead instance, "
                 f"got {self.reward_head!r}"
             )
+        # The settings left None take the head's; a copy of the kwargs: the caller's dict is theirs (and a
+        # frozen config is not changed through it).
+        defaults = head_defaults(self.reward_head)
+        head_kwargs = dict(self.reward_head_kwargs or {})
+        if self.reward_head == "thompson":
+            head_kwargs.setdefault("kappa_scale", defaults["kappa_scale"])
+        object.__setattr__(self, "reward_head_kwargs", head_kwargs)
+        for name in ("kappa", "optimism"):
+            if getattr(self, name) is None:
+                object.__setattr__(self, name, defaults[name])
         _require(
             _finite("kappa", self.kappa) >= 0, "kappa", ">= 0 (0 is the non-optimistic method)", self.kappa
         )
@@ -517,6 +539,7 @@ class LearnerBuilder:
         config = self.config
         if isinstance(config.reward_head, RewardHead):
             return copy.deepcopy(config.reward_head)
+        assert config.kappa is not None, "resolved when the settings are made"
         kwargs = dict(config.reward_head_kwargs)
         if config.reward_head == "known":
             if reward_fn is None:
@@ -567,6 +590,7 @@ class LearnerBuilder:
         :return: the learner
         """
         config = self.config
+        assert config.optimism is not None, "resolved when the settings are made"
         return TaskLearner(
             task,
             self.new_reward_head(task, reward_fn, seed),

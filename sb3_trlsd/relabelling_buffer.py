@@ -54,10 +54,10 @@ class RelabellingReplayBuffer(SharedDynamicsReplayBuffer):
     or a ``{"state": Box, "task": Discrete}`` Dict; the state Box must be bounded, or ``state_bounds``
     given, because features and similarity widths are fractions of the state box (as in ``TRLSD``).
 
-    Defaults are ``TRLSD``'s: kappa = 0 (the estimate R^ alone; the learner's own exploration explores), the
-    feature map and similarity widths from the state box. With ``kappa > 0`` the bonus far from any online
-    sample is large (up to kappa * sqrt(log|Xi_tau| / w_floor), see ``reward_heads.base``): a deep
-    Q-learner fits such targets slowly, so cap R~ at a known bound of the reward with
+    Defaults: the ridge head with kappa = 0 (the estimate R^ alone; the learner's own exploration explores),
+    the feature map and similarity widths from the state box, as ``TRLSD``'s. With ``kappa > 0`` the bonus far
+    from any online sample is large (up to kappa * sqrt(log|Xi_tau| / w_floor), see ``reward_heads.base``): a
+    deep Q-learner fits such targets slowly, so cap R~ at a known bound of the reward with
     ``reward_head_kwargs={"r_max": ...}``. The relabelled rows are many (the paper's 25,000 source rows): DQN
     gains from more gradient steps per env step and more frequent target updates than for its own few rows
     (``benchmarks/bench_relabelling_dqn.py``).
@@ -101,7 +101,8 @@ class RelabellingReplayBuffer(SharedDynamicsReplayBuffer):
         pay), ``"known"`` (``reward_fn``: the source rows get the known reward), ``"ridge_posterior"``,
         ``"thompson"``, ``"bernstein"``; or a ``RewardHead`` copied for each task (then ``kappa``, ``sigma``,
         ``similarity`` and the feature map arguments are not used)
-    :param kappa: optimism (eq. 9, 10); 0 relabels with the estimate R^ alone
+    :param kappa: optimism (eq. 9, 10); 0 relabels with the estimate R^ alone (None: the head's, 0 for
+        every head but ``"thompson"``, whose posterior scale is 0.01 of the largest reward seen)
     :param sigma: width of the ridge head's similarity (eq. 8): for eq. 6 a fraction of the state box (None:
         ``default_kernel_width(d)``, 0.04 in 2-D, the paper's 0.2 on the maze); for eq. 7 a distance between
         feature vectors (None: 0.2)
@@ -139,7 +140,7 @@ class RelabellingReplayBuffer(SharedDynamicsReplayBuffer):
         optimize_memory_usage: bool = False,
         handle_timeout_termination: bool = True,
         reward_head: str | RewardHead = "ridge",
-        kappa: float = 0.0,
+        kappa: float | None = None,
         sigma: float | Sequence[float] | None = None,
         similarity: str = "state",
         feature_map: str | FeatureMap = "auto",

@@ -76,15 +76,15 @@ class TRLSD(OffPolicyAlgorithm):
     so do ``act`` and ``add_online_transition`` from a loop of one's own. ``save``/``load`` keep the buffer's
     rows, so that a loaded model goes on learning as an uninterrupted one would.
 
-    Defaults are meant for any family of tasks, not one env's units: ``update_ratio=2`` and lambda = 1 for
-    the reward regression are the paper's (section 4); the features (``"auto"``), Fitted-Q's stopping rule
-    (``"targets"``), ``refit_growth=0.1``, the reward timing, the exploration schedule and ``kappa=0`` were
-    chosen on the tuning weights of the MO-Gymnasium suite (``benchmarks/tune_suite.py``, see the docs'
-    benchmarks page). The paper's own settings (kappa 0.1, its 5x5 RBFs of width 0.2, refits as soon as the
-    trigger fires, the greedy policy throughout) are what ``sb3-trlsd reproduce`` and the maze's zoo configs
-    give. The paper does not give the discount factor: ``gamma=0.9`` makes the maze's reward cell worth
-    reaching from anywhere (its effective horizon of ~10 steps covers the longest path around the walls) and
-    keeps FQI short.
+    Defaults are meant for any family of tasks, not one env's units: ``update_ratio=2`` and lambda = 1 for the
+    reward regression are the paper's (section 4); the features (``"auto"``), Fitted-Q's stopping rule
+    (``"targets"``), ``refit_growth=0.1``, the reward timing, the exploration schedule and the reward head
+    (posterior draws over a source) were chosen on the tuning weights of the MO-Gymnasium suite
+    (``benchmarks/tune_suite.py``, see the docs' benchmarks page). The paper's own settings (kappa 0.1, its
+    5x5 RBFs of width 0.2, refits as soon as the trigger fires, the greedy policy throughout) are what
+    ``sb3-trlsd reproduce`` and the maze's zoo configs give. The paper does not give the discount factor:
+    ``gamma=0.9`` makes the maze's reward cell worth reaching from anywhere (its effective horizon of ~10
+    steps covers the longest path around the walls) and keeps FQI short.
 
     :param policy: ``"LinearPolicy"`` (the paper's linear Q on RBF features) or ``"MlpPolicy"``
     :param env: the environment (Gymnasium env, VecEnv of any number of envs, or registered id); observations
@@ -94,11 +94,14 @@ class TRLSD(OffPolicyAlgorithm):
         box or a ``cell_fn``), ``"corners"`` (only the grid's corner cells pay), ``"known"`` (CI = 0); other
         confidence bounds (``sb3_trlsd.reward_heads``): ``"ridge_posterior"`` (OFUL / LinUCB's kappa
         sqrt(phi^T A^-1 phi) on the shared features, refitted when det A has grown by ``update_ratio``),
-        ``"thompson"`` (posterior draws of the ridge weights of scale kappa, one per refit, seeded by ``seed``
-        and the task) or ``"bernstein"`` (UCB-V's kernel-weighted empirical-Bernstein bound, eq. 6 of width
-        ``sigma``); or a ``RewardHead`` copied for each task
-    :param kappa: optimism (eq. 9, 10), in the env's reward units; 0 (default) is the non-optimistic method
-        of Atkeson & Santamaria, the paper's continuous setting uses 0.1 on rewards in [0, 1]
+        ``"thompson"`` (the default: posterior draws of the ridge weights of scale kappa, one per refit,
+        seeded by ``seed`` and the task) or ``"bernstein"`` (UCB-V's kernel-weighted empirical-Bernstein
+        bound, eq. 6 of width ``sigma``); or a ``RewardHead`` copied for each task
+    :param kappa: optimism (eq. 9, 10), in the env's reward units, and for ``"thompson"`` the posterior
+        scale, by default in units of the largest absolute reward seen (its ``kappa_scale="observed"``). 0 is
+        the non-optimistic method of Atkeson & Santamaria; the paper's continuous setting uses 0.1 on rewards
+        in [0, 1]. None: the head's (``sb3_trlsd.config.head_defaults``), 0.01 for ``"thompson"`` and 0 for
+        the others
     :param sigma: width of the similarity in W (eq. 8): for eq. 6 a fraction of the state box, one or one per
         dimension (None: ``default_kernel_width(d)``, 0.04 in 2-D: the paper's 0.2 on the maze); for eq. 7
         a distance between feature vectors (None: 0.2)
@@ -113,7 +116,8 @@ class TRLSD(OffPolicyAlgorithm):
         falls as a run goes on; 0 refits as soon as the trigger fires (the paper's Algorithm 1)
     :param optimism: where the shared buffer is relabelled with the optimistic R~ rather than the estimate
         R^: ``"always"`` (the paper), or ``"with_source"``, once the buffer holds rows the task did not
-        collect itself (a source, other tasks' rows). Fitted-Q sees the buffer's rows only, so optimism
+        collect itself (a source, other tasks' rows); None: the head's, ``"with_source"`` for
+        ``"thompson"`` and ``"always"`` for the others. Fitted-Q sees the buffer's rows only, so optimism
         reaches the Q-function through the rows it relabels: learning from scratch, a bonus or a posterior
         draw values the rows visited against unvisited ones left at 0 and keeps the greedy policy among the
         visited, where R^ (0 everywhere before a reward) leaves it to the tie-break and exploration
@@ -163,7 +167,8 @@ class TRLSD(OffPolicyAlgorithm):
         head; by default the env's ``expected_reward``. Not saved: give it again to ``load``
     :param reward_head_kwargs: extra arguments of the named reward heads (e.g. ``w_floor``, ``r_max``;
         ``ridge`` of the linear-posterior heads, ``seed`` and ``kappa_scale`` of ``"thompson"``
-        (``"observed"``: kappa in units of the largest absolute reward seen), ``reward_range`` of
+        (``"observed"``, its default here: kappa in units of the largest absolute reward seen; ``"reward"``:
+        in the env's reward units), ``reward_range`` of
         ``"bernstein"``)
     :param reward_timing: what of a transition its reward belongs to, which the reward heads learn and
         relabel at: ``"start_state"`` (the paper's R_tau(s)), ``"next_state"`` (the state it arrives at:
@@ -213,14 +218,14 @@ class TRLSD(OffPolicyAlgorithm):
         policy: str | type[TaskQPolicy],
         env: GymEnv | str | None,
         gamma: float = 0.9,
-        reward_head: str | RewardHead = "ridge",
-        kappa: float = 0.0,
+        reward_head: str | RewardHead = "thompson",
+        kappa: float | None = None,
         sigma: float | Sequence[float] | None = None,
         similarity: str = "state",
         update_ratio: float = 2.0,
         first_fit: str = "first_step",
         refit_growth: float = 0.1,
-        optimism: str = "always",
+        optimism: str | None = None,
         tie_break: str = "random",
         exploration_initial_eps: float = 1.0,
         exploration_final_eps: float = 0.0,

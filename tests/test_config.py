@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 from gymnasium import spaces
 
-from sb3_trlsd import SOURCE_DRAWS, TRLSD, Transitions, collect_transitions
+from sb3_trlsd import TRLSD, Transitions, collect_transitions
+from sb3_trlsd.config import TRLSDConfig
 from sb3_trlsd.feature_maps import AdditiveRBF, RandomFourierFeatures, RBFGrid
 from sb3_trlsd.reward_heads import GridCells, KnownRewardHead, TabularRewardHead
 from tests.conftest import MAZE_ID
@@ -37,7 +38,7 @@ def scaled(transitions: Transitions, scale: float, shift: float) -> Transitions:
     )
 
 
-@pytest.mark.parametrize("reward_head", ["ridge", "tabular"])
+@pytest.mark.parametrize("reward_head", ["thompson", "ridge", "tabular"])
 def test_a_scaled_copy_of_the_maze_learns_exactly_as_the_original_with_default_arguments(
     source_transitions, reward_head
 ):
@@ -54,6 +55,26 @@ def test_a_scaled_copy_of_the_maze_learns_exactly_as_the_original_with_default_a
         actions.append(model.replay_buffer.transitions().actions[-150:])
         assert model.policy_updates[4] >= 2
     np.testing.assert_array_equal(actions[0], actions[1])
+
+
+def test_kappa_and_optimism_left_none_take_the_heads_defaults():
+    """
+    The default head draws from the posterior at 0.01 of the largest reward seen, over a source only; every
+    other head is the paper's (kappa 0, R~ on every row); what is given is kept.
+    """
+    default = TRLSDConfig()
+    assert (default.reward_head, default.kappa, default.optimism) == ("thompson", 0.01, "with_source")
+    assert default.reward_head_kwargs == {"kappa_scale": "observed"}
+    for head in ("ridge", "tabular", "bernstein", "ridge_posterior"):
+        config = TRLSDConfig(reward_head=head)
+        assert (config.kappa, config.optimism, config.reward_head_kwargs) == (0.0, "always", {})
+    given = TRLSDConfig(kappa=0.3, optimism="always", reward_head_kwargs={"kappa_scale": "reward"})
+    assert (given.kappa, given.optimism) == (0.3, "always")
+    assert given.reward_head_kwargs == {"kappa_scale": "reward"}
+    model = TRLSD("LinearPolicy", gym.make(MAZE_ID), seed=0)
+    head = model.task_learner(0).head
+    assert (head.kappa, head.kappa_scale) == (0.01, "observed")
+    assert model.task_learner(0).optimism == "with_source"
 
 
 def test_an_unbounded_state_box_is_refused_with_the_way_to_bound_it():
@@ -137,14 +158,14 @@ def test_integer_states_get_one_rbf_per_cell_and_learn():
 
 
 @pytest.mark.parametrize("seed", [0, 1])
-def test_posterior_draws_with_source_optimism_explore_over_a_source_and_walk_from_scratch(seed):
+def test_the_default_posterior_draws_explore_over_a_source_and_walk_from_scratch(seed):
     """
-    Thompson draws relabel the buffer only once it holds rows the task did not collect: over random source
-    transitions of a 10 x 6 grid they lead the greedy policy to the corner 14 steps away (paid on 17 of 30
-    steps); from scratch on the 6 x 4 grid R^ relabels it, the tie-break walks, and the corner is found on the
-    seeds where draws over the task's own rows alone stay among them.
+    The default head's Thompson draws relabel the buffer only once it holds rows the task did not collect:
+    over random source transitions of a 10 x 6 grid they lead the greedy policy to the corner 14 steps away
+    (paid on 17 of 30 steps); from scratch on the 6 x 4 grid R^ relabels it, the tie-break walks, and the
+    corner is found on the seeds where draws over the task's own rows alone stay among them.
     """
-    kwargs = {**SOURCE_DRAWS, "seed": seed}
+    kwargs = {"seed": seed}
     large = GridWalk(10, 6)
     model = TRLSD("LinearPolicy", gym.wrappers.TimeLimit(large, 30), **kwargs)
     rng = np.random.default_rng(seed)

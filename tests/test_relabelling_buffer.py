@@ -187,14 +187,15 @@ def test_sampling_a_source_row_before_any_online_row_says_what_to_do(maze_spaces
         buffer.sample(8)
 
 
-def test_the_buffer_takes_trlsds_defaults():
+def test_the_buffer_takes_trlsds_defaults_but_the_ridge_head():
     """Every setting the buffer shares with TRLSD defaults to TRLSD's (its config's), so that one set of
-    defaults holds for both; a buffer sees no env, so its reward timing "auto" is what TRLSD's is on an env
-    that declares none."""
+    defaults holds for both, but the head: the buffer relabels with the ridge estimate, since nothing renews
+    posterior draws there as TRLSD's refits do (kappa None is then the ridge head's 0). A buffer sees no env,
+    so its reward timing "auto" is what TRLSD's is on an env that declares none."""
     fields = {field.name: field for field in dataclasses.fields(TRLSDConfig)}
     shared = [p for p in inspect.signature(RelabellingReplayBuffer).parameters.values() if p.name in fields]
     assert {p.name for p in shared} >= {"reward_head", "kappa", "sigma", "feature_map", "reward_timing"}
-    for parameter in shared:
+    for parameter in (p for p in shared if p.name != "reward_head"):
         field = fields[parameter.name]
         default = field.default_factory() if field.default is dataclasses.MISSING else field.default
         same = parameter.default == default or (parameter.default is None and default == {})
@@ -202,6 +203,7 @@ def test_the_buffer_takes_trlsds_defaults():
     maze = gym.make(MAZE_ID, task=3)
     buffer = RelabellingReplayBuffer(10, maze.observation_space, maze.action_space, device="cpu")
     assert buffer.reward_timing == "step" == TRLSDConfig().timing_for(None)
+    assert (buffer.config.reward_head, buffer.config.kappa) == ("ridge", 0.0)
 
 
 def test_bad_settings_and_oversized_sources_are_refused(maze_spaces):

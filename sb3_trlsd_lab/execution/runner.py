@@ -90,12 +90,17 @@ class Method:
         :param protocol: the choices the paper leaves open (gamma, first fit, the heads' edge cases)
         """
         settings = protocol.model_kwargs(self.reward_head)
-        settings["reward_head_kwargs"] = {**settings["reward_head_kwargs"], **self.reward_head_kwargs}
+        # The paper's relabelling (R~ on every row) and, for posterior draws, kappa in reward units: the
+        # library's defaults for the draws are not the paper's.
+        scale = {"kappa_scale": "reward"} if self.reward_head == "thompson" else {}
+        head_kwargs = {**scale, **settings["reward_head_kwargs"], **self.reward_head_kwargs}
+        settings["reward_head_kwargs"] = head_kwargs
         return TRLSD(
             self.policy,
             env,
             reward_head=self.reward_head,
             kappa=self.kappa,
+            optimism="always",
             sigma=self.sigma / MAZE_SIZE if self.similarity == "state" else self.sigma,
             similarity=self.similarity,
             update_ratio=self.update_ratio,
