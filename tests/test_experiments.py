@@ -63,6 +63,16 @@ def test_multitask_fast_path_takes_the_actions_of_learn():
     assert record.policy_updates == sum(model.policy_updates.values())
 
 
+@pytest.mark.parametrize("reward_head", ["ridge", "tabular", "thompson", "bernstein"])
+def test_a_method_is_the_papers_relabelling_whatever_the_librarys_defaults(reward_head):
+    """A figure's method relabels every row with R~ (the paper's Algorithm 1) at the kappa it names, in
+    reward units for the draws too, which the library's defaults would take from the largest reward seen."""
+    model = Method("m", reward_head=reward_head, kappa=0.3).make_model(gym.make(MAZE_ID, task=0), 0)
+    learner = model.task_learner(0)
+    assert (learner.optimism, learner.head.kappa) == ("always", 0.3)
+    assert getattr(learner.head, "kappa_scale", "reward") == "reward"
+
+
 def test_reporting_statistics_match_numpy():
     """Wrong standard errors or windows would misstate every figure's uncertainty."""
     values = np.arange(12.0).reshape(3, 4)
