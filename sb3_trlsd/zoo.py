@@ -35,8 +35,9 @@ ZOO_MISSING = "the RL Zoo is not installed: pip install 'sb3-trlsd[zoo]' (or pip
 def sample_trlsd_params(trial: Any, n_actions: int, n_envs: int, additional_args: dict) -> dict[str, Any]:
     """
     Sampler of TRLSD's hyperparameters for the Zoo's ``-optimize``: the optimism ``kappa`` and the width
-    ``sigma`` of eq. 8-9 on log scales around the paper's values (Figure 7), the refit ``update_ratio``
-    (the paper tries 1.05 to 2) and the discount factor.
+    ``sigma`` of eq. 8-9 on log scales around the paper's values (Figure 7; ``sigma`` reaches the ridge and
+    Bernstein heads only, the config's ``reward_head``), the refit ``update_ratio`` (the paper tries 1.05 to
+    2) and the discount factor.
 
     :param trial: an Optuna trial
     :param n_actions: unused (the Zoo's sampler signature)
