@@ -73,6 +73,14 @@ CANDIDATES: dict[str, dict[str, Any]] = {
     "thompson,kappa=0.01,observed,with_source": {},
     "thompson,kappa=0.003,observed,with_source": {"kappa": 0.003},
     "thompson,kappa=0.03,observed,with_source": {"kappa": 0.03},
+    # The settings tuned under the ridge head, one at a time again under the draws (the defaults).
+    "draws,exploration_steps=250": {"exploration_steps": 250},
+    "draws,exploration_steps=1000": {"exploration_steps": 1000},
+    "draws,exploration_final_eps=0.05": {"exploration_final_eps": 0.05},
+    "draws,refit_growth=0": {"refit_growth": 0.0},
+    "draws,refit_growth=0.3": {"refit_growth": 0.3},
+    "draws,update_ratio=4": {"update_ratio": 4.0},
+    "draws,reward_timing=transition": {"reward_timing": "transition"},
     # Epsilon-greedy over each task's first steps: none (the greedy policy), or over other spans.
     "exploration_initial_eps=0": {**RIDGE, "exploration_initial_eps": 0.0},
     "exploration_steps=100": {**RIDGE, "exploration_steps": 100},
