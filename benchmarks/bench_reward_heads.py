@@ -30,13 +30,10 @@ from gymnasium import spaces
 from stable_baselines3.common.callbacks import BaseCallback
 
 from sb3_trlsd import TRLSD, Transitions
+from sb3_trlsd_lab.execution.protocols import paper_relabelling
 
 MOVES = np.array([[1, 0], [-1, 0], [0, 1], [0, -1]])
-DRAWS_IN_REWARD_UNITS = {
-    "reward_head": "thompson",
-    "optimism": "always",
-    "reward_head_kwargs": {"kappa_scale": "reward"},
-}
+DRAWS_IN_REWARD_UNITS = paper_relabelling("thompson")
 HEADS: dict[str, dict[str, Any]] = {  # name -> TRLSD settings
     "ridge, kappa = 0": {"reward_head": "ridge"},
     "ridge_posterior, kappa = 0.003": {"reward_head": "ridge_posterior", "kappa": 0.003},

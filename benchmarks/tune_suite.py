@@ -25,6 +25,7 @@ from sb3_trlsd_lab.benchmarks.mo_suite.families import FAMILIES, available
 from sb3_trlsd_lab.benchmarks.mo_suite.peers import SETTABLE
 from sb3_trlsd_lab.benchmarks.mo_suite.suite import family_scale, suite_run
 from sb3_trlsd_lab.execution.jobs import run_jobs
+from sb3_trlsd_lab.execution.protocols import paper_relabelling
 
 # The ridge head without optimism, which every candidate below but the draws varies one setting of: TRLSD's
 # defaults when these candidates were first scored (the stored results call it "defaults" up to the 16-run
@@ -34,12 +35,7 @@ RIDGE: dict[str, Any] = {"reward_head": "ridge"}
 
 def draws_in_reward_units(kappa: float) -> dict[str, Any]:
     """Posterior draws of scale ``kappa`` in the env's reward units, relabelling every row (the paper's)."""
-    return {
-        "reward_head": "thompson",
-        "kappa": kappa,
-        "optimism": "always",
-        "reward_head_kwargs": {"kappa_scale": "reward"},
-    }
+    return {**paper_relabelling("thompson"), "kappa": kappa}
 
 
 # Each candidate: TRLSD's settings other than its defaults ({}: the defaults as they are).

@@ -237,14 +237,13 @@ class TRLSDConfig:
             )
         # The settings left None take the head's; a copy of the kwargs: the caller's dict is theirs (and a
         # frozen config is not changed through it).
-        defaults = head_defaults(self.reward_head)
         head_kwargs = dict(self.reward_head_kwargs or {})
-        if self.reward_head == "thompson":
-            head_kwargs.setdefault("kappa_scale", defaults["kappa_scale"])
+        for name, value in head_defaults(self.reward_head).items():
+            if name not in ("kappa", "optimism"):
+                head_kwargs.setdefault(name, value)  # an argument of the head itself
+            elif getattr(self, name) is None:
+                object.__setattr__(self, name, value)
         object.__setattr__(self, "reward_head_kwargs", head_kwargs)
-        for name in ("kappa", "optimism"):
-            if getattr(self, name) is None:
-                object.__setattr__(self, name, defaults[name])
         _require(
             _finite("kappa", self.kappa) >= 0, "kappa", ">= 0 (0 is the non-optimistic method)", self.kappa
         )

@@ -51,6 +51,7 @@ __all__ = [
     "SOURCE_SET_RULES",
     "Preset",
     "Protocol",
+    "paper_relabelling",
     "protocol_named",
     "protocol_record",
 ]
@@ -61,6 +62,19 @@ TABULAR_HEADS = ("tabular", "corners")  # the discrete settings, where ``tabular
 FLOORED_HEADS = ("ridge", *TABULAR_HEADS, "bernstein")
 MAZE_CENTRE = (2.5, 2.5)  # the fixed start: as far from each corner as from the others
 MAZE_R_MAX = 1.0  # the largest expected reward of the maze (eq. 12): 1 in the task's cell
+
+
+def paper_relabelling(reward_head: str) -> dict[str, Any]:
+    """
+    ``TRLSD`` settings that give a named head the paper's relabelling whatever the library's defaults are:
+    R~ on every row of the buffer (``optimism="always"``, Algorithm 1) and, for posterior draws, kappa in the
+    env's reward units (``kappa_scale="reward"``).
+
+    :param reward_head: a head name ``TRLSD`` takes
+    :return: ``reward_head``, ``optimism`` and ``reward_head_kwargs``
+    """
+    head_kwargs = {"kappa_scale": "reward"} if reward_head == "thompson" else {}
+    return {"reward_head": reward_head, "optimism": "always", "reward_head_kwargs": head_kwargs}
 
 
 def _finite_or_none(name: str, value: float | None) -> None:

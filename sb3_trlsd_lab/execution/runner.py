@@ -27,7 +27,7 @@ from sb3_trlsd_envs import MAZE_ID, N_TASKS
 from sb3_trlsd_envs.dynamics import MAZE_SIZE
 from sb3_trlsd_envs.evaluation import task_family_of
 from sb3_trlsd_envs.pictures import greedy_policy_grid, state_grid
-from sb3_trlsd_lab.execution.protocols import AS_BUILT, Protocol
+from sb3_trlsd_lab.execution.protocols import AS_BUILT, Protocol, paper_relabelling
 
 __all__ = [
     "Method",
@@ -90,17 +90,14 @@ class Method:
         :param protocol: the choices the paper leaves open (gamma, first fit, the heads' edge cases)
         """
         settings = protocol.model_kwargs(self.reward_head)
-        # The paper's relabelling (R~ on every row) and, for posterior draws, kappa in reward units: the
-        # library's defaults for the draws are not the paper's.
-        scale = {"kappa_scale": "reward"} if self.reward_head == "thompson" else {}
-        head_kwargs = {**scale, **settings["reward_head_kwargs"], **self.reward_head_kwargs}
-        settings["reward_head_kwargs"] = head_kwargs
+        relabelling = paper_relabelling(self.reward_head)
+        head_kwargs = {**relabelling.pop("reward_head_kwargs"), **settings["reward_head_kwargs"]}
+        settings["reward_head_kwargs"] = {**head_kwargs, **self.reward_head_kwargs}
         return TRLSD(
             self.policy,
             env,
-            reward_head=self.reward_head,
             kappa=self.kappa,
-            optimism="always",
+            **relabelling,
             sigma=self.sigma / MAZE_SIZE if self.similarity == "state" else self.sigma,
             similarity=self.similarity,
             update_ratio=self.update_ratio,
