@@ -34,6 +34,7 @@ from sb3_trlsd.reward_heads import (
     SIMILARITIES,
     RewardFn,
     RewardHead,
+    check_head_kwargs,
     make_reward_head,
 )
 from sb3_trlsd.reward_timing import REWARD_TIMINGS, TransitionFeatures, input_box, input_widths
@@ -230,20 +231,7 @@ class TRLSDConfig:
     reward_timing: str = "auto"
 
     def __post_init__(self) -> None:
-        if not isinstance(self.reward_head, RewardHead) and self.reward_head not in HEAD_NAMES:
-            raise ValueError(
-                f"reward_head must be one of {list(HEAD_NAMES)} or a RewardHead instance, "
-                f"got {self.reward_head!r}"
-            )
-        # The settings left None take the head's; a copy of the kwargs: the caller's dict is theirs (and a
-        # frozen config is not changed through it).
-        head_kwargs = dict(self.reward_head_kwargs or {})
-        for name, value in head_defaults(self.reward_head).items():
-            if name not in ("kappa", "optimism"):
-                head_kwargs.setdefault(name, value)  # an argument of the head itself
-            elif getattr(self, name) is None:
-                object.__setattr__(self, name, value)
-        object.__setattr__(self, "reward_head_kwargs", head_kwargs)
+        self._resolve_head()
         _require(
             _finite("kappa", self.kappa) >= 0, "kappa", ">= 0 (0 is the non-optimistic method)", self.kappa
         )
@@ -319,6 +307,27 @@ class TRLSDConfig:
     def head_name(self) -> str:
         """The reward head's name, or its class name for a ``RewardHead`` instance."""
         return self.reward_head if isinstance(self.reward_head, str) else type(self.reward_head).__name__
+
+    def _resolve_head(self) -> None:
+        """
+        Check the reward head and its arguments, and give the settings left None the head's
+        (``head_defaults``); the kwargs are copied: the caller's dict is theirs (and a frozen config is not
+        changed through it).
+        """
+        if not isinstance(self.reward_head, RewardHead) and self.reward_head not in HEAD_NAMES:
+            raise ValueError(
+                f"reward_head must be one of {list(HEAD_NAMES)} or a RewardHead instance, "
+                f"got {self.reward_head!r}"
+            )
+        head_kwargs = dict(self.reward_head_kwargs or {})
+        for name, value in head_defaults(self.reward_head).items():
+            if name not in ("kappa", "optimism"):
+                head_kwargs.setdefault(name, value)  # an argument of the head itself
+            elif getattr(self, name) is None:
+                object.__setattr__(self, name, value)
+        object.__setattr__(self, "reward_head_kwargs", head_kwargs)
+        if isinstance(self.reward_head, str):
+            check_head_kwargs(self.reward_head, head_kwargs)
 
     @property
     def exploration(self) -> Exploration:

@@ -169,7 +169,7 @@ class TRLSD(OffPolicyAlgorithm):
         ``ridge`` of the linear-posterior heads, ``seed`` and ``kappa_scale`` of ``"thompson"``
         (``"observed"``, its default here: kappa in units of the largest absolute reward seen; ``"reward"``:
         in the env's reward units), ``reward_range`` of
-        ``"bernstein"``)
+        ``"bernstein"``); one the head does not take is refused (``reward_heads.head_arguments``)
     :param reward_timing: what of a transition its reward belongs to, which the reward heads learn and
         relabel at: ``"start_state"`` (the paper's R_tau(s)), ``"next_state"`` (the state it arrives at:
         e.g. a goal paid on arrival), ``"transition"`` (the pair (s, s'), whose features are Phi(s) and

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from gymnasium import spaces
 
-from sb3_trlsd import TRLSD, Transitions, collect_transitions
+from sb3_trlsd import TRLSD, RelabellingReplayBuffer, Transitions, collect_transitions
 from sb3_trlsd.config import TRLSDConfig
 from sb3_trlsd.feature_maps import AdditiveRBF, RandomFourierFeatures, RBFGrid
 from sb3_trlsd.reward_heads import GridCells, KnownRewardHead, TabularRewardHead
@@ -75,6 +75,33 @@ def test_kappa_and_optimism_left_none_take_the_heads_defaults():
     head = model.task_learner(0).head
     assert (head.kappa, head.kappa_scale) == (0.01, "observed")
     assert model.task_learner(0).optimism == "with_source"
+
+
+@pytest.mark.parametrize(
+    ("head", "wrong", "taken"),
+    [
+        ("ridge", "kappa_scale", "w_floor"),  # the draws' setting, on a head without draws
+        ("thompson", "w_floor", "kappa_scale"),
+        ("tabular", "ridge", "cells_per_dim"),
+        ("known", "r_max", None),
+        ("bernstein", "cells_per_dim", "reward_range"),
+    ],
+)
+def test_reward_head_kwargs_a_head_does_not_take_are_refused_when_the_model_is_made(head, wrong, taken):
+    """An argument of another head fails at once, naming the head's own, not at the first refit."""
+    with pytest.raises(ValueError, match=rf"\['{wrong}'\] are not arguments of the '{head}' reward_head"):
+        TRLSDConfig(reward_head=head, reward_head_kwargs={wrong: 1.0})
+    maze = gym.make(MAZE_ID)
+    with pytest.raises(ValueError, match="not arguments of"):
+        TRLSD("LinearPolicy", maze, reward_head=head, reward_head_kwargs={wrong: 1.0})
+    with pytest.raises(ValueError, match="not arguments of"):
+        RelabellingReplayBuffer(
+            10, maze.observation_space, maze.action_space, reward_head=head, reward_head_kwargs={wrong: 1.0}
+        )
+    if taken is not None:
+        with pytest.raises(ValueError, match=rf"which takes \[.*'{taken}'"):
+            TRLSDConfig(reward_head=head, reward_head_kwargs={wrong: 1.0})
+    assert TRLSDConfig(reward_head=head, reward_head_kwargs={"log_count": "plus_1"}).reward_head == head
 
 
 def test_an_unbounded_state_box_is_refused_with_the_way_to_bound_it():

@@ -20,7 +20,8 @@ docstring.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import inspect
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import numpy as np
@@ -61,6 +62,8 @@ __all__ = [
     "RidgeRewardHead",
     "TabularRewardHead",
     "ThompsonRidgeRewardHead",
+    "check_head_kwargs",
+    "head_arguments",
     "make_reward_head",
     "make_tabular_head",
 ]
@@ -70,6 +73,42 @@ REWARD_HEAD_NAMES = ("ridge", "tabular", "corners", "known")
 # features ("ridge_posterior", "thompson") or with its similarity's width ("bernstein").
 CONFIDENCE_BOUND_HEAD_NAMES = ("ridge_posterior", "thompson", "bernstein")
 DEFAULT_CELLS_PER_DIM = 5  # the paper's 5 x 5 cells of the maze
+
+
+def head_arguments(name: str) -> frozenset[str]:
+    """
+    The keyword arguments the reward head called ``name`` takes from ``reward_head_kwargs``: its
+    constructor's (and for the tabular heads ``make_tabular_head``'s) but those ``make_reward_head`` sets
+    itself, and ``log_count``, which every head takes.
+
+    :param name: a name of ``REWARD_HEAD_NAMES`` or ``CONFIDENCE_BOUND_HEAD_NAMES``
+    :raises ValueError: for any other name
+    """
+    if name not in _HEAD_BUILDERS:
+        known = list(REWARD_HEAD_NAMES + CONFIDENCE_BOUND_HEAD_NAMES)
+        raise ValueError(f"reward_head must be one of {known}, got {name!r}")
+    names = {"log_count"}
+    for builder, set_here in _HEAD_BUILDERS[name]:
+        parameters = inspect.signature(builder).parameters.values()
+        names.update(p.name for p in parameters if p.kind in _NAMED and p.name not in set_here)
+    return frozenset(names)
+
+
+def check_head_kwargs(name: str, kwargs: Mapping[str, Any]) -> None:
+    """
+    Refuse ``reward_head_kwargs`` that the head called ``name`` does not take, naming those it does.
+
+    :param name: the head's name
+    :param kwargs: its ``reward_head_kwargs``
+    :raises ValueError: for an argument that is not the head's, or an unknown head
+    """
+    allowed = head_arguments(name)
+    unknown = sorted(set(kwargs) - allowed)
+    if unknown:
+        raise ValueError(
+            f"reward_head_kwargs {unknown} are not arguments of the {name!r} reward_head, which takes "
+            f"{sorted(allowed)}"
+        )
 
 
 def make_tabular_head(
@@ -157,6 +196,7 @@ def make_reward_head(
         and ``kappa_scale`` for ``"thompson"``, ``reward_range`` for ``"bernstein"``)
     :return: the head
     """
+    check_head_kwargs(name, kwargs)
     rule = None if log_count is None else check_log_count_rule(log_count)
     head = _named_head(
         name,
@@ -194,8 +234,6 @@ def _named_head(
     if name in ("tabular", "corners"):
         return make_tabular_head(state_space, kappa=kappa, corners=name == "corners", **kwargs)
     if name == "known":
-        if kwargs:
-            raise ValueError(f"the 'known' reward_head takes no reward_head_kwargs, got {sorted(kwargs)}")
         return KnownRewardHead(reward_fn, task)
     if name in ("ridge_posterior", "thompson"):
         if features is None:
@@ -212,3 +250,22 @@ def _named_head(
     raise ValueError(
         f"reward_head must be one of {list(REWARD_HEAD_NAMES + CONFIDENCE_BOUND_HEAD_NAMES)}, got {name!r}"
     )
+
+
+# What builds each named head, and the arguments ``make_reward_head`` gives it itself: the builders' other
+# named arguments are the head's ``reward_head_kwargs``.
+_NAMED = (inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY)
+_SET_ON_FEATURES = frozenset({"self", "features", "kappa"})
+_TABULAR = (
+    (make_tabular_head, frozenset({"state_space", "kappa", "corners"})),
+    (TabularRewardHead, frozenset({"self", "kappa"})),
+)
+_HEAD_BUILDERS: dict[str, tuple[tuple[Callable[..., Any], frozenset[str]], ...]] = {
+    "ridge": ((RidgeRewardHead, _SET_ON_FEATURES | {"sigma", "similarity"}),),
+    "tabular": _TABULAR,
+    "corners": _TABULAR,
+    "known": (),
+    "ridge_posterior": ((RidgePosteriorRewardHead, _SET_ON_FEATURES),),
+    "thompson": ((ThompsonRidgeRewardHead, _SET_ON_FEATURES),),
+    "bernstein": ((BernsteinRewardHead, frozenset({"self", "kappa", "sigma"})),),
+}
