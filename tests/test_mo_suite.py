@@ -19,7 +19,14 @@ from sb3_trlsd_lab.benchmarks.mo_suite.families import (
     weight_split,
 )
 from sb3_trlsd_lab.benchmarks.mo_suite.peers import METHODS, SETTABLE, run_method
-from sb3_trlsd_lab.benchmarks.mo_suite.suite import family_scale, goal_table, paired_gain, run_suite
+from sb3_trlsd_lab.benchmarks.mo_suite.suite import (
+    family_scale,
+    fraction_interval,
+    goal_table,
+    paired_gain,
+    reference_fraction,
+    run_suite,
+)
 from sb3_trlsd_lab.cli import main
 
 GRID_FAMILIES = ["deep-sea-treasure-v0", "resource-gathering-v0", "four-room-v0"]
@@ -214,6 +221,24 @@ def test_the_goal_table_says_which_goal_holds_from_the_paired_differences():
     # 1.1 ± 0.041 above random; 0.05 ± 0.029 ahead of DQN is within 2 SE; 65% is short of 70%.
     cells = ["TRLSD", "+1.100 ± 0.041", "yes", "+0.050 ± 0.029", "**no**", "65%", "**no** |"]
     assert row.split(" | ")[1:] == cells
+    data["goals"]["trlsd"]["fraction_ci95"] = [0.52, 0.81]
+    assert goal_table([data]).splitlines()[-1].split(" | ")[6] == "65% [52%, 81%]"
+
+
+def test_the_fraction_of_the_reward_given_level_comes_with_its_paired_interval():
+    """The point is (TRLSD - random) / (reference - random) of the means; the runs are resampled whole."""
+    scores = {
+        "trlsd": [0.5, 0.9, 0.2, 0.6, 0.4],
+        "trlsd-reward-given": [1.0, 1.1, 0.3, 0.9, 0.6],
+        "random": [0.1, 0.2, 0.0, 0.1, 0.0],
+    }
+    by_method = {name: [{"score": s} for s in values] for name, values in scores.items()}
+    results = {name: {"score": {"mean": float(np.mean(values))}} for name, values in scores.items()}
+    fraction = reference_fraction(results, "trlsd")
+    assert fraction == pytest.approx((0.52 - 0.08) / (0.78 - 0.08))
+    low, high = fraction_interval(by_method, "trlsd")
+    assert low < fraction < high <= 1.5
+    assert fraction_interval({"trlsd": by_method["trlsd"]}, "trlsd") is None
 
 
 def test_family_scale_is_the_range_of_the_means_or_twice_their_median_error():

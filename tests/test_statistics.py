@@ -16,6 +16,7 @@ from sb3_trlsd_lab.stats.bootstrap import (
     aggregate_intervals,
     independent_bootstrap_ci,
     interval_cell,
+    paired_bootstrap_ci,
     probability_of_improvement_ci,
     stratified_bootstrap_ci,
 )
@@ -227,6 +228,30 @@ def test_mean_ratio_is_the_ratio_of_the_aggregate_means_resampled_on_each_side()
     # A zero level: no finite interval.
     _, zero_low, zero_high = independent_bootstrap_ci(mean_ratio, [x, np.zeros(4)], reps=20)
     assert not np.isfinite([zero_low, zero_high]).any()
+
+
+def test_paired_resamples_keep_each_runs_scores_together():
+    """
+    Scores that move together run by run (a shared target's scale) give a paired difference a narrow
+    interval, and the runs' share of a reference's gain an exact one when that share is the same in every run.
+    """
+    rng = np.random.default_rng(5)
+    scale = rng.uniform(0.1, 10.0, 30)  # each run's reward scale
+    floor, reference = 0.2 * scale, 1.2 * scale
+    method = floor + 0.7 * (reference - floor)  # 70% of the reference's gain in every run
+
+    def share(x, ref, low):
+        return np.mean(x - low, axis=-1) / np.mean(ref - low, axis=-1)
+
+    point, low, high = paired_bootstrap_ci(share, [method, reference, floor], reps=300)
+    assert point == pytest.approx(0.7) and low == pytest.approx(0.7) and high == pytest.approx(0.7)
+    # Resampled apart (each method's runs drawn on their own), the same scores give a wide interval.
+    _, apart_low, apart_high = independent_bootstrap_ci(
+        lambda x, ref, low: share(x[..., 0], ref[..., 0], low[..., 0]), [method, reference, floor], reps=300
+    )
+    assert apart_high - apart_low > 0.3
+    with pytest.raises(ValueError, match="one length"):
+        paired_bootstrap_ci(share, [method, reference[:5], floor])
 
 
 def test_improvement_figure_writes_a_png(tmp_path):

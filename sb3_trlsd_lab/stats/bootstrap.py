@@ -41,6 +41,7 @@ __all__ = [
     "improvement_intervals",
     "independent_bootstrap_ci",
     "interval_cell",
+    "paired_bootstrap_ci",
     "probability_of_improvement_ci",
     "stratified_bootstrap_ci",
 ]
@@ -197,25 +198,80 @@ def independent_bootstrap_ci(
     :return: (point, low, high)
     """
     matrices = [_one_matrix(matrix, f"matrices[{index}]") for index, matrix in enumerate(matrices)]
+    return _percentile_interval(
+        statistic,
+        matrices,
+        lambda n, rng: [_resample(matrix, n, rng) for matrix in matrices],
+        reps=reps,
+        confidence=confidence,
+        seed=seed,
+    )
+
+
+def paired_bootstrap_ci(
+    statistic: Callable[..., np.ndarray],
+    columns: Sequence[np.ndarray],
+    *,
+    reps: int = 2_000,
+    confidence: float = 0.95,
+    seed: int = 0,
+) -> tuple[float, float, float]:
+    """
+    ``statistic(*columns)`` and its percentile interval over resamples of the runs, one draw of runs for
+    every column: each column holds one method's score of each run, and a run's scores stay together (the
+    same target and seed for every method), as a paired difference needs. E.g. a share of a reference's gain
+    over a floor, ``mean(x - floor) / mean(reference - floor)``.
+
+    :param statistic: maps one batch of resamples of each column, (reps, n_runs) each, to (reps,)
+    :param columns: each method's scores, (n_runs,) each, run i of every column the same run
+    :param reps: bootstrap resamples
+    :param confidence: probability that the interval covers the statistic, in (0, 1)
+    :param seed: seed of the resamples
+    :return: (point, low, high)
+    """
+    shapes = [np.shape(column) for column in columns]
+    if not shapes or len(set(shapes)) != 1 or len(shapes[0]) != 1 or shapes[0][0] == 0:
+        raise ValueError(f"columns must be (n_runs,) arrays of one length, n_runs >= 1, got shapes {shapes}")
+    table = np.column_stack([np.asarray(column, dtype=np.float64) for column in columns])
+
+    def resample(n: int, rng: np.random.Generator) -> list[np.ndarray]:
+        rows = table[rng.integers(0, len(table), size=(n, len(table)))]  # (n, n_runs, n_columns)
+        return [rows[..., j] for j in range(table.shape[1])]
+
+    return _percentile_interval(
+        statistic, list(table.T), resample, reps=reps, confidence=confidence, seed=seed
+    )
+
+
+def _percentile_interval(
+    statistic: Callable[..., np.ndarray],
+    data: Sequence[np.ndarray],
+    resample: Callable[[int, np.random.Generator], Sequence[np.ndarray]],
+    *,
+    reps: int,
+    confidence: float,
+    seed: int,
+) -> tuple[float, float, float]:
+    """The statistic of ``data`` and its percentile interval over ``reps`` resamples drawn by ``resample``."""
     if not isinstance(reps, (int, np.integer)) or reps < 1:
         raise ValueError(f"reps must be an integer >= 1, got {reps!r}")
     if not 0.0 < confidence < 1.0:
         raise ValueError(f"confidence must be in (0, 1), got {confidence!r}")
     rng = np.random.default_rng(seed)
-    per_rep = sum(matrix.size for matrix in matrices)
+    per_rep = sum(np.size(array) for array in data)
     estimates = []
     for n in _chunks(reps, max(1, CHUNK_ELEMENTS // per_rep)):
-        batch = statistic(*(_resample(matrix, n, rng) for matrix in matrices))
+        batch = statistic(*resample(n, rng))
         if np.shape(batch) != (n,):
             raise ValueError(
-                f"statistic must map score matrices (..., n_runs, n_tasks) to (...), got shape "
+                f"statistic must map a batch of resamples (..., n_runs[, n_tasks]) to (...), got shape "
                 f"{np.shape(batch)} from a batch of {n}"
             )
         estimates.append(batch)
     alpha = (1.0 - confidence) / 2
     with np.errstate(invalid="ignore"):  # a ratio's estimates may be infinite: its interval then is too
         low, high = np.percentile(np.concatenate(estimates), [100 * alpha, 100 * (1 - alpha)])
-    return float(statistic(*matrices)), float(low), float(high)
+    return float(statistic(*data)), float(low), float(high)
 
 
 def _resample(scores: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:

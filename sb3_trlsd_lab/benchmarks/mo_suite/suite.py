@@ -24,7 +24,7 @@ from sb3_trlsd_lab.benchmarks.mo_suite.peers import METHODS, PeerResult, run_met
 from sb3_trlsd_lab.execution.jobs import run_jobs
 from sb3_trlsd_lab.paper.figures import new_figure, save_figure
 from sb3_trlsd_lab.paper.reporting import mean_and_standard_error, summary, write_json
-from sb3_trlsd_lab.stats.bootstrap import stratified_bootstrap_ci
+from sb3_trlsd_lab.stats.bootstrap import paired_bootstrap_ci, stratified_bootstrap_ci
 from sb3_trlsd_lab.stats.statistics import aggregate_mean
 
 __all__ = [
@@ -153,21 +153,51 @@ def reference_fraction(results: Mapping[str, Mapping[str, Any]], method: str) ->
     return (results[method]["score"]["mean"] - floor) / gain
 
 
+def fraction_interval(
+    by_method: Mapping[str, Sequence[Mapping[str, Any]]], method: str, seed: int = 0
+) -> list[float] | None:
+    """
+    The 95% paired bootstrap interval of ``reference_fraction``: the runs resampled together, a run's three
+    scores (the method's, its reference's, the random policy's) kept as one (None without the three).
+
+    :param by_method: each method's runs' rows (``suite_run``), run i of every method the same run
+    :param method: a key of ``REFERENCES``
+    :param seed: seed of the resamples
+    """
+    names = (method, REFERENCES[method], "random")
+    if not set(names) <= set(by_method):
+        return None
+    columns = [np.array([row["score"] for row in by_method[name]]) for name in names]
+
+    def share(scores: np.ndarray, reference: np.ndarray, floor: np.ndarray) -> np.ndarray:
+        with np.errstate(divide="ignore", invalid="ignore"):  # a resample with no gain to share
+            return np.mean(scores - floor, axis=-1) / np.mean(reference - floor, axis=-1)
+
+    _, low, high = paired_bootstrap_ci(share, columns, seed=seed)
+    return [low, high]
+
+
 def goals(
-    results: Mapping[str, Mapping[str, Any]], by_method: Mapping[str, Sequence[Mapping[str, Any]]]
+    results: Mapping[str, Mapping[str, Any]],
+    by_method: Mapping[str, Sequence[Mapping[str, Any]]],
+    seed: int = 0,
 ) -> dict[str, dict[str, Any]]:
     """
     Each TRLSD method of the run against its goals: its score minus DQN's on the same runs, and its
-    fraction of the reward-given level (the methods of ``REFERENCES`` that ran beside DQN).
+    fraction of the reward-given level with that fraction's paired bootstrap interval (the methods of
+    ``REFERENCES`` that ran beside DQN).
     """
-    return {
-        method: {
+    table = {}
+    for method in REFERENCES:
+        if not {method, "dqn"} <= set(by_method):
+            continue
+        fraction = reference_fraction(results, method)
+        table[method] = {
             "minus_dqn": paired_gain(by_method[method], by_method["dqn"]),
-            "fraction_of_reward_given": reference_fraction(results, method),
+            "fraction_of_reward_given": fraction,
+            "fraction_ci95": None if fraction is None else fraction_interval(by_method, method, seed),
         }
-        for method in REFERENCES
-        if {method, "dqn"} <= set(by_method)
-    }
+    return table
 
 
 def write_rows(path: Path, rows: Mapping[str, Sequence[Mapping[str, Any]]]) -> None:
@@ -281,7 +311,7 @@ def run_suite(
         seed,
         time.perf_counter() - started,
         results=results,
-        goals=goals(results, by_method),
+        goals=goals(results, by_method, seed),
     )
     write_json(out / f"{name}.json", data)
     return data
@@ -316,12 +346,12 @@ def goal_table(datas: Sequence[Mapping[str, Any]]) -> str:
     """
     The Markdown table of the TRLSD methods against their goals, one row per family and method: its gain
     over random (paired), its score minus DQN's (paired) in standard errors, and its fraction of the
-    reward-given level's gain over random; each with whether it holds (above random by 2 SE, ahead of DQN by
-    2 SE, at least 70%).
+    reward-given level's gain over random, with its 95% paired bootstrap interval where the summary has one;
+    each with whether it holds (above random by 2 SE, ahead of DQN by 2 SE, at least 70%).
     """
     lines = [
         "| family | method | gain over random | above random | minus DQN | ahead of DQN by 2 SE "
-        "| fraction of reward-given | >= 70% |",
+        "| fraction of reward-given [95% bootstrap] | >= 70% |",
         "|---|---|---|---|---|---|---|---|",
     ]
     for data in datas:
@@ -334,10 +364,16 @@ def goal_table(datas: Sequence[Mapping[str, Any]]) -> str:
                 f"| {data['parameters']['family']} | {data['parameters']['methods'][method]} | "
                 f"{gain['mean']:+.3f} ± {gain['se']:.3f} | {_yes(gain['mean'] > 2 * gain['se'])} | "
                 f"{versus['mean']:+.3f} ± {versus['se']:.3f} | {_yes(versus['mean'] > 2 * versus['se'])} | "
-                f"{'n/a' if fraction is None else f'{fraction:.0%}'} | "
+                f"{_fraction_cell(fraction, goal.get('fraction_ci95'))} | "
                 f"{'n/a' if fraction is None else _yes(fraction >= 0.7)} |"
             )
     return "\n".join(lines)
+
+
+def _fraction_cell(fraction: float | None, interval: Sequence[float] | None) -> str:
+    if fraction is None:
+        return "n/a"
+    return f"{fraction:.0%}" if interval is None else f"{fraction:.0%} [{interval[0]:.0%}, {interval[1]:.0%}]"
 
 
 def _yes(holds: bool) -> str:
