@@ -25,7 +25,7 @@ from sb3_trlsd_lab.execution.jobs import run_jobs
 from sb3_trlsd_lab.paper.figures import new_figure, save_figure
 from sb3_trlsd_lab.paper.reporting import mean_and_standard_error, summary, write_json
 from sb3_trlsd_lab.stats.bootstrap import paired_bootstrap_ci, stratified_bootstrap_ci
-from sb3_trlsd_lab.stats.statistics import aggregate_mean
+from sb3_trlsd_lab.stats.statistics import aggregate_mean, mean_ratio
 
 __all__ = [
     "DEFAULT_RUNS",
@@ -170,8 +170,8 @@ def fraction_interval(
     columns = [np.array([row["score"] for row in by_method[name]]) for name in names]
 
     def share(scores: np.ndarray, reference: np.ndarray, floor: np.ndarray) -> np.ndarray:
-        with np.errstate(divide="ignore", invalid="ignore"):  # a resample with no gain to share
-            return np.mean(scores - floor, axis=-1) / np.mean(reference - floor, axis=-1)
+        # Each run's gains as one task's column: (..., n_runs) -> (..., n_runs, 1).
+        return mean_ratio((scores - floor)[..., None], (reference - floor)[..., None])
 
     _, low, high = paired_bootstrap_ci(share, columns, seed=seed)
     return [low, high]
