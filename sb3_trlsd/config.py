@@ -65,11 +65,16 @@ STEP_HEAD_NAMES = ("ridge", "ridge_posterior", "thompson", "bernstein")
 # the task did not collect (R^ before, so that a task learnt from scratch walks as the plain estimate
 # does): over a source they explore where a reward is rare, whatever the reward units (docs: the
 # benchmarks page, the reward head). Every other head: the paper's, no optimism unless kappa is given, R~
-# relabelling every row.
+# relabelling every row. Exploration follows what is left to learn: a head that learns the reward explores
+# at random over a task's first steps; a head with nothing to learn (the known reward: no uncertainty
+# anywhere) acts greedily from the first step, as the paper's Figure 1.
 HEAD_DEFAULTS: dict[str, dict[str, Any]] = {
     "thompson": {"kappa": 0.01, "optimism": "with_source", "kappa_scale": "observed"},
+    "known": {"exploration_initial_eps": 0.0},
 }
-OTHER_HEAD_DEFAULTS: dict[str, Any] = {"kappa": 0.0, "optimism": "always"}
+OTHER_HEAD_DEFAULTS: dict[str, Any] = {"kappa": 0.0, "optimism": "always", "exploration_initial_eps": 1.0}
+# The settings of a config (not of the head itself) that a head's defaults give when left None.
+HEAD_SETTINGS = ("kappa", "optimism", "exploration_initial_eps")
 FEATURES_SIMILARITY_SIGMA = 0.2  # eq. 7 compares feature vectors, whose scale is the features' own
 # Fitted-Q's tolerance by stopping rule when none is given. On the targets, an RMS change of 1e-3 of the
 # return scale: with gamma = 0.9 the targets are then within ~1% of the scale of their fixed point's, well
@@ -123,14 +128,21 @@ def _one_of(name: str, value: Any, choices: Sequence[str]) -> None:
 
 def head_defaults(reward_head: str | RewardHead) -> dict[str, Any]:
     """
-    The settings a reward head takes when they are left None: ``HEAD_DEFAULTS`` of its name, else
-    ``OTHER_HEAD_DEFAULTS`` (a ``RewardHead`` instance included).
+    The settings a reward head takes when they are left None: ``HEAD_DEFAULTS`` of its name over
+    ``OTHER_HEAD_DEFAULTS``. A ``RewardHead`` instance takes ``OTHER_HEAD_DEFAULTS``, and acts greedily from
+    the first step (``exploration_initial_eps`` 0) when it has no uncertainty (``has_uncertainty``): there is
+    nothing about the reward left for it to explore.
 
     :param reward_head: a head name or a ``RewardHead``
-    :return: ``kappa`` and ``optimism`` (and ``kappa_scale`` of the ``"thompson"`` head)
+    :return: ``kappa``, ``optimism`` and ``exploration_initial_eps`` (and ``kappa_scale`` of the
+        ``"thompson"`` head)
     """
-    named = HEAD_DEFAULTS.get(reward_head) if isinstance(reward_head, str) else None
-    return dict(named or OTHER_HEAD_DEFAULTS)
+    defaults = dict(OTHER_HEAD_DEFAULTS)
+    if isinstance(reward_head, str):
+        defaults.update(HEAD_DEFAULTS.get(reward_head, {}))
+    elif not reward_head.has_uncertainty:
+        defaults["exploration_initial_eps"] = 0.0
+    return defaults
 
 
 def check_discount(gamma: float) -> None:
@@ -178,7 +190,8 @@ class TRLSDConfig:
         (None: the head's, ``head_defaults``)
     :param tie_break: the greedy action among equal Q-values while learning, one of ``TIE_BREAKS``:
         ``"random"`` (seeded by the run's seed) or ``"first"``
-    :param exploration_initial_eps: the epsilon-greedy rate at a task's first online step, in [0, 1]
+    :param exploration_initial_eps: the epsilon-greedy rate at a task's first online step, in [0, 1] (None:
+        the head's, ``head_defaults``: 1 for a head that learns the reward, 0 for one with nothing to learn)
     :param exploration_final_eps: the rate once a task has ``exploration_steps`` online samples, in [0, 1]
     :param exploration_steps: a task's online samples over which the rate falls linearly (>= 0)
     :param fqi_max_iterations: cap on Fitted-Q iterations per refit (None: the Q-function's own default)
@@ -214,7 +227,7 @@ class TRLSDConfig:
     refit_growth: float = 0.1
     optimism: str | None = None
     tie_break: str = "random"
-    exploration_initial_eps: float = 1.0
+    exploration_initial_eps: float | None = None
     exploration_final_eps: float = 0.0
     exploration_steps: int = 500
     fqi_max_iterations: int | None = None
@@ -321,7 +334,7 @@ class TRLSDConfig:
             )
         head_kwargs = dict(self.reward_head_kwargs or {})
         for name, value in head_defaults(self.reward_head).items():
-            if name not in ("kappa", "optimism"):
+            if name not in HEAD_SETTINGS:
                 head_kwargs.setdefault(name, value)  # an argument of the head itself
             elif getattr(self, name) is None:
                 object.__setattr__(self, name, value)
@@ -332,6 +345,7 @@ class TRLSDConfig:
     @property
     def exploration(self) -> Exploration:
         """The epsilon-greedy behaviour of these settings."""
+        assert self.exploration_initial_eps is not None, "resolved when the settings are made"
         initial, final = float(self.exploration_initial_eps), float(self.exploration_final_eps)
         return Exploration(initial, final, int(self.exploration_steps))
 

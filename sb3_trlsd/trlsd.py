@@ -129,8 +129,10 @@ class TRLSD(OffPolicyAlgorithm):
     :param exploration_initial_eps: epsilon-greedy while learning (``learn``, ``act``; ``predict`` stays
         greedy), per task: the probability of a uniformly random action at a task's first online step. A
         greedy policy on a Q that no reward supports yet is deterministic all the same and can walk into a
-        wall and stay there; random steps spread a new task's first samples instead. 0 with
-        ``exploration_final_eps=0`` is the paper's greedy policy (its reproduction)
+        wall and stay there; random steps spread a new task's first samples instead. None: 1 for the heads
+        that learn the reward, 0 for a head with nothing to learn (``"known"``, or a ``RewardHead`` without
+        uncertainty), which acts greedily from its first step (``sb3_trlsd.config.head_defaults``); a value
+        given wins. 0 with ``exploration_final_eps=0`` is the paper's greedy policy (its reproduction)
     :param exploration_final_eps: the probability once the task has ``exploration_steps`` online samples
     :param exploration_steps: a task's online samples over which the probability falls linearly from
         ``exploration_initial_eps`` to ``exploration_final_eps``. The schedule counts each task's own samples,
@@ -227,7 +229,7 @@ class TRLSD(OffPolicyAlgorithm):
         refit_growth: float = 0.1,
         optimism: str | None = None,
         tie_break: str = "random",
-        exploration_initial_eps: float = 1.0,
+        exploration_initial_eps: float | None = None,
         exploration_final_eps: float = 0.0,
         exploration_steps: int = 500,
         fqi_max_iterations: int | None = None,

@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 import yaml
 
-from sb3_trlsd import TRLSD
+from sb3_trlsd import TRLSD, collect_transitions
+from sb3_trlsd.config import head_defaults
 from sb3_trlsd.engine import Exploration
 from sb3_trlsd_lab.execution.protocols import AS_BUILT
 from tests.conftest import MAZE_ID
@@ -73,7 +74,45 @@ def test_the_paper_s_protocol_and_its_zoo_configs_never_explore():
     assert len(paper_configs) == 6
     for path in paper_configs:
         (hyperparameters,) = yaml.safe_load(path.read_text()).values()
-        assert hyperparameters["exploration_initial_eps"] == 0.0, path.name
+        default = head_defaults(hyperparameters["reward_head"])["exploration_initial_eps"]
+        rate = hyperparameters.get("exploration_initial_eps", default)
+        assert rate == 0.0, path.name
+
+
+def greedy_sets_of_online_steps(model: TRLSD, env: gym.Env, n_steps: int) -> list[tuple[int, np.ndarray]]:
+    """``n_steps`` of ``act`` and ``add_online_transition``: each action, and its state's greedy actions."""
+    steps = []
+    obs, _ = env.reset(seed=0)
+    for _ in range(n_steps):
+        action = model.act(obs)  # fits the task first at its first step
+        q_values = model.policy.q_values(obs["state"][None].astype(np.float64), int(obs["task"]))[0]
+        steps.append((action, np.flatnonzero(q_values == q_values.max())))
+        next_obs, reward, terminated, truncated, _ = env.step(action)
+        model.add_online_transition(obs, action, float(reward), next_obs, terminated, truncated)
+        obs = env.reset()[0] if terminated or truncated else next_obs
+    return steps
+
+
+def test_with_the_reward_known_the_defaults_act_greedily_from_the_first_step():
+    """
+    With the reward known there is nothing left to explore: an epsilon-greedy start would spend the first
+    steps of the agent that knows the reward on random actions (Figure 1: it heads for the reward at once).
+    A head that learns the reward keeps its exploration, and a rate given explicitly wins.
+    """
+    source = collect_transitions(gym.make(MAZE_ID, task=(3, 3)), 3_000, seed=0)
+    env = gym.make(MAZE_ID, task=(1, 5))
+    known = TRLSD("LinearPolicy", env, reward_head="known", seed=0)
+    known.load_transitions(source)
+    assert known.config.exploration_initial_eps == 0.0
+    steps = greedy_sets_of_online_steps(known, env, 100)
+    assert all(action in greedy for action, greedy in steps)
+
+    learnt = TRLSD("LinearPolicy", env, seed=0)
+    learnt.load_transitions(source)
+    assert learnt.config.exploration_initial_eps == 1.0
+    assert sum(action not in greedy for action, greedy in greedy_sets_of_online_steps(learnt, env, 100)) > 20
+    explicit = TRLSD("LinearPolicy", env, reward_head="known", exploration_initial_eps=0.5, seed=0)
+    assert explicit.config.exploration_initial_eps == 0.5
 
 
 @pytest.mark.parametrize(
