@@ -13,19 +13,11 @@ from pathlib import Path
 
 DOCS = Path(__file__).resolve().parent
 ROOT = DOCS.parent
-# The library and the envs of this checkout, not of whatever copy is installed: the envs folder installs
-# as sb3_trlsd_envs, whichever of its two names it has in the checkout.
+# The library and the envs of this checkout, not of whatever copy is installed (the envs' package lives in
+# the checkout's envs/ folder).
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "envs"))
 sys.path.insert(0, str(DOCS / "_ext"))
-if not (ROOT / "sb3_trlsd_envs").is_dir() and (ROOT / "envs").is_dir():
-    import importlib.util
-
-    spec = importlib.util.spec_from_file_location(
-        "sb3_trlsd_envs", ROOT / "envs" / "__init__.py", submodule_search_locations=[str(ROOT / "envs")]
-    )
-    module = importlib.util.module_from_spec(spec)
-    sys.modules["sb3_trlsd_envs"] = module
-    spec.loader.exec_module(module)
 
 from sb3_trlsd.version import __version__  # noqa: E402
 

@@ -1,4 +1,4 @@
-"""The maze's dynamics (sb3_trlsd_envs/dynamics.py): move statistics, rebounds, no move across a wall."""
+"""The maze's dynamics (envs/sb3_trlsd_envs/dynamics.py): move statistics, rebounds, no move across a wall."""
 
 import numpy as np
 import pytest
@@ -91,7 +91,7 @@ def test_border_rebounds_stay_inside_the_square():
 )
 def test_touching_a_wall_counts_as_documented(start, end, crosses):
     """
-    The touching cases of sb3_trlsd_envs/dynamics.py's docstring, on the wall x = 3 for y in [0, 3] (exact
+    The touching cases of the dynamics module's docstring, on the wall x = 3 for y in [0, 3] (exact
     floats): a mismatch means the crossing test and its documentation disagree.
     """
     assert segment_crosses_walls(np.array(start), np.array(end), MAZE)[0] == crosses
