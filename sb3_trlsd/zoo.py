@@ -4,14 +4,20 @@ The RL Zoo's ``train`` and ``enjoy`` with ``--algo trlsd``.
 The Zoo has no plugin mechanism for algorithms: its ``--algo`` choices are the keys of
 ``rl_zoo3.utils.ALGOS``, read before ``--gym-packages`` is imported. ``register_with_zoo`` adds ``trlsd``
 to that table (and to the hyperparameter samplers of ``-optimize``), the maze is registered by importing
-this package, and ``run_zoo`` then hands the user's arguments, unchanged, to the Zoo's own script (the
-pattern the Zoo documents for SBX), with one fix: ``train`` evaluates on the tasks it trains on.
+this package, and ``run_zoo`` then hands the user's arguments to the Zoo's own script (the pattern the Zoo
+documents for SBX), with three additions: ``--algo`` defaults to ``trlsd``; without ``-conf``, ``train`` takes
+the package's ``trlsd.yml`` (``sb3_trlsd.zoo_configs``, the Zoo's ``hyperparams/<algo>.yml`` layout), and a
+``-conf`` naming one of the package's configs (``-conf continuous``) takes it; and ``train`` evaluates on the
+tasks it trains on.
 """
 
 from __future__ import annotations
 
+import os
 import sys
 from collections.abc import Sequence
+from importlib import resources
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 from unittest import mock
 
@@ -21,15 +27,97 @@ if TYPE_CHECKING:
     from rl_zoo3.exp_manager import ExperimentManager
 
 __all__ = [
+    "DEFAULT_CONFIG",
     "ZOO_MISSING",
+    "config_arguments",
     "convert_trlsd_params",
     "evaluating_on_the_training_tasks",
+    "packaged_config",
     "register_with_zoo",
     "run_zoo",
     "sample_trlsd_params",
 ]
 
 ZOO_MISSING = "the RL Zoo is not installed: pip install 'sb3-trlsd[zoo]' (or pip install rl_zoo3)"
+DEFAULT_CONFIG = "trlsd.yml"  # the package's config of every env it registers, the Zoo's hyperparams layout
+CONFIG_OPTIONS = ("-conf", "--conf-file")
+ENV_OPTIONS = ("--env",)
+
+
+def packaged_config(name: str) -> Path | None:
+    """
+    The path of one of the package's Zoo configs (``sb3_trlsd.zoo_configs``), by its file name with or without
+    ``.yml``.
+
+    :param name: e.g. ``"continuous"`` or ``"trlsd.yml"``
+    :return: its path, or None when the package has no such config
+    """
+    file_name = name if name.endswith(".yml") else f"{name}.yml"
+    if os.sep in file_name or (os.altsep and os.altsep in file_name):
+        return None
+    path = Path(str(resources.files("sb3_trlsd.zoo_configs") / file_name))
+    return path if path.is_file() else None
+
+
+def _option_value(argv: Sequence[str], names: Sequence[str]) -> tuple[int, str] | None:
+    """The index and value of the first of ``names`` in ``argv`` (``--name value`` or ``--name=value``)."""
+    for index, argument in enumerate(argv):
+        for name in names:
+            if argument == name and index + 1 < len(argv):
+                return index, argv[index + 1]
+            if argument.startswith(f"{name}="):
+                return index, argument.split("=", 1)[1]
+    return None
+
+
+def config_arguments(script: str, argv: Sequence[str]) -> list[str]:
+    """
+    The Zoo's command line for the user's ``argv``: ``--algo trlsd`` unless an algorithm is named; for
+    ``train``, a ``-conf`` naming one of the package's configs (and not a file) replaced by its path, and
+    without ``-conf`` the package's ``trlsd.yml``.
+
+    :param script: ``"train"`` or ``"enjoy"``
+    :param argv: the user's arguments
+    :return: the arguments to hand to the Zoo
+    :raises ValueError: for ``train`` without ``-conf`` on an env the package's ``trlsd.yml`` has no config
+        for, saying where configs are looked for
+    """
+    arguments = list(argv)
+    if _option_value(arguments, ("--algo",)) is None:
+        arguments = ["--algo", "trlsd", *arguments]
+    algorithm = _option_value(arguments, ("--algo",))
+    if script != "train" or algorithm is None or algorithm[1] != "trlsd":
+        return arguments
+    given = _option_value(arguments, CONFIG_OPTIONS)
+    if given is not None:
+        index, name = given
+        packaged = packaged_config(name)
+        if packaged is not None and not os.path.exists(name):
+            if arguments[index] in CONFIG_OPTIONS:
+                arguments[index + 1] = str(packaged)
+            else:
+                arguments[index] = f"{arguments[index].split('=', 1)[0]}={packaged}"
+        return arguments
+    default = packaged_config(DEFAULT_CONFIG)
+    assert default is not None, "the package ships its trlsd.yml"
+    env = _option_value(arguments, ENV_OPTIONS)
+    if env is not None:
+        import yaml
+
+        covered = yaml.safe_load(default.read_text()) or {}
+        if env[1] not in covered:
+            raise ValueError(
+                f"no config for {env[1]}: give one with -conf FILE (a Zoo-style YAML of TRLSD's arguments "
+                f"per env id, or the name of one of the package's: {', '.join(sorted(configs_named()))}); "
+                f"without -conf, configs are looked for in {default}, which covers {', '.join(covered)}"
+            )
+    return [*arguments, "-conf", str(default)]
+
+
+def configs_named() -> list[str]:
+    """The names of the package's Zoo configs (file names without ``.yml``)."""
+    folder = resources.files("sb3_trlsd.zoo_configs")
+    return [entry.name[:-4] for entry in folder.iterdir() if entry.name.endswith(".yml")]
 
 
 def sample_trlsd_params(trial: Any, n_actions: int, n_envs: int, additional_args: dict) -> dict[str, Any]:
@@ -108,19 +196,19 @@ def run_zoo(script: str, argv: Sequence[str]) -> int:
 
     :param script: ``"train"`` or ``"enjoy"``
     :param argv: the user's arguments, passed on unchanged
-    :return: exit status: 1 with a one-line instruction when the Zoo is not installed, 2 with a one-line
-        message when the Zoo or TRLSD rejects an argument (a ``ValueError``: e.g. an env the config lacks)
+    :return: exit status: 2 with a one-line message naming the extra when the Zoo is not installed, or when
+        the Zoo or TRLSD rejects an argument (a ``ValueError``: e.g. an env no config covers)
     """
     try:
         register_with_zoo()
     except ImportError:
         print(f"sb3-trlsd {script}: {ZOO_MISSING}", file=sys.stderr)
-        return 1
+        return 2
     if script not in ("train", "enjoy"):
         raise ValueError(f"script must be 'train' or 'enjoy', got {script!r}")
     saved_argv = sys.argv
-    sys.argv = [f"sb3-trlsd {script}", *argv]
     try:
+        sys.argv = [f"sb3-trlsd {script}", *config_arguments(script, argv)]
         if script == "train":
             zoo_train()
         else:

@@ -1,6 +1,7 @@
 """
-The ``sb3-trlsd`` command line: one subcommand per job. This module runs them (``main``), each run stopped
-cleanly by SIGINT or SIGTERM; what each accepts is ``cli_parser.py``'s.
+The ``sb3-trlsd`` command line: one subcommand per job. This module runs the lab's (``main``), each run
+stopped cleanly by SIGINT or SIGTERM; what each accepts is ``cli_parser.py``'s; ``console.py`` is the entry
+point, which hands the Zoo's ``train`` and ``enjoy`` on.
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ import numpy as np
 
 import sb3_trlsd_envs
 from sb3_trlsd_lab.benchmarks.benchmark import FAMILIES
-from sb3_trlsd_lab.cli_parser import IMAGE_EXTENSIONS, ZOO_SCRIPTS, build_parser
+from sb3_trlsd_lab.cli_parser import IMAGE_EXTENSIONS, build_parser
 from sb3_trlsd_lab.registry import FIGURES, STUDIES, STUDY_OPTIONS
 
 __all__ = ["main"]
@@ -345,12 +346,11 @@ COMMANDS: dict[str, Callable[[argparse.Namespace], int]] = {
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of the ``sb3-trlsd`` console script."""
+    """
+    The lab's commands of the ``sb3-trlsd`` console script (``console.main``, which hands the Zoo's
+    ``train`` and ``enjoy`` on before it comes here).
+    """
     argv = list(sys.argv[1:] if argv is None else argv)
-    if argv and argv[0] in ZOO_SCRIPTS:
-        from sb3_trlsd.zoo import run_zoo
-
-        return run_zoo(argv[0], argv[1:])
     args = build_parser().parse_args(argv)
     try:
         return COMMANDS[args.command](args)

@@ -11,6 +11,7 @@ import os
 from sb3_trlsd_lab.benchmarks.benchmark import FAMILIES
 from sb3_trlsd_lab.benchmarks.mo_suite.families import FAMILIES as SUITE_FAMILIES
 from sb3_trlsd_lab.benchmarks.mo_suite.peers import METHODS as SUITE_METHODS
+from sb3_trlsd_lab.console import ZOO_SCRIPTS
 from sb3_trlsd_lab.execution.backends import BACKENDS
 from sb3_trlsd_lab.execution.protocols import DEFAULT_PROTOCOL, PRESETS
 from sb3_trlsd_lab.registry import FIGURES, STUDIES
@@ -24,7 +25,6 @@ __all__ = [
     "positive_int",
 ]
 
-ZOO_SCRIPTS = ("train", "enjoy")  # subcommands passed on, unchanged, to the RL Zoo
 # What ``render`` writes, from its file's extension (formats matplotlib's imsave writes, tested).
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".tiff", ".webp", ".pdf", ".svg", ".eps")
 

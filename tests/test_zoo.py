@@ -9,7 +9,7 @@ from tensorboard.backend.event_processing.event_file_loader import EventFileLoad
 
 from sb3_trlsd import TRLSD
 from sb3_trlsd_envs import MAZE_ID
-from sb3_trlsd_lab.cli import main
+from sb3_trlsd_lab.console import main
 from tests.test_cli import assert_one_line_error
 
 optuna = pytest.importorskip("optuna")
@@ -17,6 +17,8 @@ pytest.importorskip("rl_zoo3")
 
 CONFIG_DIR = Path(__file__).parents[1] / "zoo_configs"
 CONFIGS = sorted(CONFIG_DIR.glob("*.yml"))
+# The configs of one env each (trlsd.yml, the package's config of every env it registers, has its own tests).
+ONE_ENV_CONFIGS = [path for path in CONFIGS if path.stem != "trlsd"]
 ALGORITHM_SCALARS = {
     "train/policy_updates",
     "train/fqi_iterations",
@@ -38,6 +40,7 @@ def event_tags(directory: Path) -> dict[str, set[str]]:
 
 def test_every_paper_setting_and_task_family_has_a_config():
     assert {path.stem for path in CONFIGS} == {
+        "trlsd",
         "known_reward",
         "continuous",
         "discrete",
@@ -49,7 +52,7 @@ def test_every_paper_setting_and_task_family_has_a_config():
     }
 
 
-@pytest.mark.parametrize("config", CONFIGS, ids=lambda path: path.stem)
+@pytest.mark.parametrize("config", ONE_ENV_CONFIGS, ids=lambda path: path.stem)
 def test_train_then_enjoy_each_config(config, tmp_path, capsys):
     logs, tensorboard = tmp_path / "logs", tmp_path / "tb"
     (env_id, hyperparameters), *others = yaml.safe_load(config.read_text()).items()
@@ -139,7 +142,38 @@ def test_an_env_the_config_lacks_is_one_line(capsys):
 
 def test_without_the_zoo_train_says_how_to_install_it(monkeypatch, capsys):
     monkeypatch.setitem(sys.modules, "rl_zoo3", None)  # import rl_zoo3 now raises ImportError
-    assert main(["train", "--algo", "trlsd", "--env", MAZE_ID]) != 0
+    assert main(["train", "--algo", "trlsd", "--env", MAZE_ID]) == 2
     error = capsys.readouterr().err.strip()
     assert "\n" not in error
     assert "pip install 'sb3-trlsd[zoo]'" in error
+
+
+def test_the_package_config_of_every_env_it_registers_covers_them():
+    import gymnasium as gym
+
+    covered = set(yaml.safe_load((CONFIG_DIR / "trlsd.yml").read_text()))
+    assert covered == {env_id for env_id in gym.registry if env_id.startswith("TRLSD/")}
+
+
+def test_train_without_algo_or_config_takes_trlsd_and_the_package_config(tmp_path, monkeypatch):
+    """A user with no checkout: ``sb3-trlsd train --env ID`` finds TRLSD's config of the env by its id."""
+    monkeypatch.chdir(tmp_path)  # no zoo_configs/ folder around
+    arguments = ["train", "--env", MAZE_ID, "-n", "40", "-f", str(tmp_path / "logs"), "--seed", "0"]
+    assert main([*arguments, "-params", "source_transitions:300"]) == 0
+    (saved,) = (tmp_path / "logs").glob("trlsd/*_1/*.zip")
+    model = TRLSD.load(saved)
+    assert model.num_timesteps == 40 and model.replay_buffer.size() == 340
+
+
+def test_a_config_named_as_the_package_s_is_found_without_a_checkout(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    arguments = ["train", "--algo", "trlsd", "--env", MAZE_ID, "-conf", "known_reward", "-n", "20"]
+    assert main([*arguments, "-f", str(tmp_path / "logs"), "-params", "source_transitions:300"]) == 0
+    (saved,) = (tmp_path / "logs").glob("trlsd/*_1/*.zip")
+    assert TRLSD.load(saved).config.reward_head == "known"
+
+
+def test_an_env_no_config_covers_says_where_configs_are_looked_for(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    assert main(["train", "--env", "CartPole-v1"]) == 2
+    assert_one_line_error(capsys, "no config for CartPole-v1", "give one with -conf FILE", "trlsd.yml")
