@@ -305,10 +305,12 @@ class SharedDynamicsReplayBuffer(ReplayBuffer):
         :return: (n, 2 d + 6)
         """
         n = self.size()
+        if not n:  # reshape(0, -1) cannot tell the columns of no row
+            return np.zeros((0, 2 * self.obs_shape[0] + 6))
         columns = [
             self._flat(getattr(self, name)).reshape(n, -1).astype(np.float64) for name in STORED_FIELDS
         ]
-        return np.concatenate(columns, axis=1) if n else np.zeros((0, 2 * self.obs_shape[0] + 6))
+        return np.concatenate(columns, axis=1)
 
     def restore_packed_rows(self, rows: np.ndarray) -> None:
         """

@@ -20,6 +20,7 @@ from gymnasium.wrappers import OrderEnforcing, PassiveEnvChecker, RecordEpisodeS
 from stable_baselines3.common.monitor import Monitor
 from tqdm.auto import tqdm
 
+from sb3_trlsd.atomic_files import atomic_write
 from sb3_trlsd.observations import split_observation, state_space_of
 
 __all__ = ["Transitions", "collect_transitions", "load_npz_arrays"]
@@ -103,11 +104,18 @@ class Transitions:
 
     def save(self, path: str | os.PathLike) -> None:
         """
-        Save the transitions as an uncompressed ``.npz`` file (one array per field).
+        Save the transitions as an uncompressed ``.npz`` file (one array per field), written whole or not
+        at all: through a temporary file that replaces an earlier one only once complete.
 
-        :param path: destination file; numpy appends ``.npz`` if it is missing
+        :param path: destination file; ``.npz`` is appended if it is missing, as numpy does
+        :raises ValueError: when ``path`` is a folder
         """
-        np.savez(path, **{field.name: getattr(self, field.name) for field in fields(self)})
+        target = os.fspath(path)
+        target = target if target.endswith(".npz") else f"{target}.npz"
+        if os.path.isdir(target):
+            raise ValueError(f"path {target!r} is a folder, not a file to save the transitions to")
+        with atomic_write(target, "wb") as file:
+            np.savez(file, **{field.name: getattr(self, field.name) for field in fields(self)})
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> Transitions:

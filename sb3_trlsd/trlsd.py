@@ -24,6 +24,7 @@ from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
 
+from sb3_trlsd.atomic_files import save_file
 from sb3_trlsd.buffers import SharedDynamicsReplayBuffer
 from sb3_trlsd.callbacks import TaskView, has_tensorboard, log_hyperparameters, log_task_picture
 from sb3_trlsd.config import LearnerBuilder, TRLSDConfig, check_discount
@@ -32,7 +33,7 @@ from sb3_trlsd.engine import Engine, Run, explore_rng, tie_rng
 from sb3_trlsd.feature_maps import FeatureMap
 from sb3_trlsd.fqi import FQIResult
 from sb3_trlsd.observations import StateBoxMonitor, check_action_space, split_observation, state_space_of
-from sb3_trlsd.persistence import BUFFER_ROWS, empty_rows, read_replay_buffer
+from sb3_trlsd.persistence import BUFFER_ROWS, check_model_zip, empty_rows, read_replay_buffer
 from sb3_trlsd.policies import LinearPolicy, MlpPolicy, TaskQPolicy
 from sb3_trlsd.q_functions import PolicyQFunctions
 from sb3_trlsd.reward_heads import KnownRewardHead, RewardFn, RewardHead
@@ -616,12 +617,29 @@ class TRLSD(OffPolicyAlgorithm):
         exclude: Iterable[str] | None = None,
         include: Iterable[str] | None = None,
     ) -> None:
-        """SB3's ``save``, with the shared buffer's rows in the zip (so that ``load`` can go on learning)."""
+        """
+        SB3's ``save``, with the shared buffer's rows in the zip (so that ``load`` can go on learning), and
+        written whole or not at all: to a path (``.zip`` added when it has no suffix), through a temporary
+        file that replaces the earlier one only once complete, so that a failed save leaves it loadable.
+
+        :raises ValueError: when ``path`` is a folder
+        """
         self._buffer_rows = th.as_tensor(self.replay_buffer.packed_rows())
         try:
-            super().save(path, exclude=exclude, include=include)
+            with save_file(path, ".zip") as file:
+                super().save(file, exclude=exclude, include=include)
         finally:
             self._buffer_rows = empty_rows()
+
+    def save_replay_buffer(self, path: str | pathlib.Path | io.BufferedIOBase) -> None:
+        """
+        SB3's ``save_replay_buffer``, written whole or not at all (see ``save``; ``.pkl`` added to a path
+        without a suffix).
+
+        :raises ValueError: when ``path`` is a folder
+        """
+        with save_file(path, ".pkl") as file:
+            super().save_replay_buffer(file)
 
     @classmethod
     def load(  # type: ignore[override]
@@ -634,7 +652,13 @@ class TRLSD(OffPolicyAlgorithm):
         force_reset: bool = True,
         **kwargs: Any,
     ) -> SelfTRLSD:
-        """SB3's ``load``; the shared buffer comes back with its rows, the known heads with reward_fn."""
+        """
+        SB3's ``load``; the shared buffer comes back with its rows, the known heads with reward_fn.
+
+        :raises ValueError: naming the file, when it is not a whole zip of ``TRLSD.save`` (cut short,
+            damaged, or lacking one of ``MODEL_ENTRIES``)
+        """
+        check_model_zip(path)
         model = super().load(path, env, device, custom_objects, print_system_info, force_reset, **kwargs)
         rows = model._buffer_rows
         if len(rows):

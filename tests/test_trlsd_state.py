@@ -1,8 +1,11 @@
 """TRLSD's learning state: one owner per task, nothing lost on save/load, validation before storing."""
 
 import base64
+import errno
+import io
 import json
 import os
+import pickle
 import subprocess
 import sys
 import warnings
@@ -11,6 +14,7 @@ import zipfile
 import gymnasium as gym
 import numpy as np
 import pytest
+import torch as th
 
 from sb3_trlsd import TRLSD, TaskLearner
 from sb3_trlsd.fqi import DEFAULT_TOL
@@ -217,3 +221,153 @@ def test_a_user_package_named_envs_does_not_break_the_mazes_registration(tmp_pat
     )
     assert result.returncode == 0, result.stderr
     assert result.stdout.strip() == "sb3_trlsd_envs.maze"
+
+
+def fail_midway(monkeypatch, module, name, at_call):
+    """
+    Make ``module.name``, a writer taking ``(obj, file)``, write a few bytes and then fail as a full disk
+    does at its ``at_call``-th call (1: the first), the calls before it going through.
+    """
+    writer, calls = getattr(module, name), []
+
+    def failing(obj, file, *args, **kwargs):
+        calls.append(name)
+        if len(calls) < at_call:
+            return writer(obj, file, *args, **kwargs)
+        file.write(b"\x00" * 64)
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(module, name, failing)
+
+
+def small_learnt_model(steps=60):
+    model = TRLSD(
+        "LinearPolicy", gym.make(MAZE_ID, task=(1, 5)), source_transitions=300, buffer_size=2_000, seed=0
+    )
+    return model.learn(total_timesteps=steps)
+
+
+def what_was_saved(model):
+    """Everything a checkpoint must give back: the Q's parameters, the buffer's rows, the greedy actions."""
+    states = np.random.default_rng(0).uniform(0, 5, size=(50, 2)).astype(np.float32)
+    parameters = {name: value.clone() for name, value in model.policy.state_dict().items()}
+    actions = model.predict({"state": states, "task": np.full(50, 4)}, deterministic=True)[0]
+    return parameters, model.replay_buffer.packed_rows(), actions
+
+
+def save_model(model, path):
+    model.save(path)
+
+
+def load_model(path, model):
+    return TRLSD.load(path)  # a new model: nothing of ``model`` in it
+
+
+def save_buffer(model, path):
+    model.save_replay_buffer(path)
+
+
+def load_buffer(path, model):
+    model.load_replay_buffer(path)  # its rows replace those learnt since the save
+    return model
+
+
+@pytest.mark.parametrize(
+    ("save", "load", "file_name", "writer"),
+    [
+        (save_model, load_model, "model.zip", (th, "save", 2)),
+        (save_buffer, load_buffer, "buffer.pkl", (pickle, "dump", 1)),
+    ],
+    ids=["model-zip", "replay-buffer-pkl"],
+)
+def test_a_save_that_fails_midway_leaves_the_earlier_checkpoint_loadable_exactly(
+    tmp_path, monkeypatch, save, load, file_name, writer
+):
+    """
+    A save that fails as a full disk does (an OSError midway through the file) must not have destroyed the
+    checkpoint it was to replace: written in place, the earlier zip or pickle is cut short and cannot be
+    loaded (EOFError, KeyError). The earlier one loads exactly (parameters, buffer rows, greedy actions), and
+    no partial file is left beside it.
+    """
+    model = small_learnt_model()
+    path = tmp_path / file_name
+    save(model, path)
+    saved = what_was_saved(model)
+    model.learn(total_timesteps=40, reset_num_timesteps=False)
+    with monkeypatch.context() as patch:
+        fail_midway(patch, *writer)
+        with pytest.raises(OSError, match="No space left"):
+            save(model, path)
+    assert os.listdir(tmp_path) == [file_name]
+    loaded = load(path, model)
+    ours = what_was_saved(loaded)
+    np.testing.assert_array_equal(ours[1], saved[1])
+    if save is save_model:  # a buffer's file holds its rows only
+        assert ours[0].keys() == saved[0].keys()
+        assert all(th.equal(ours[0][name], saved[0][name]) for name in saved[0])
+        np.testing.assert_array_equal(ours[2], saved[2])
+
+
+def test_a_model_that_never_learnt_saves_and_loads(tmp_path):
+    """An empty buffer has rows of no column: packing them must not fail, or no fresh model can be saved."""
+    model = TRLSD("LinearPolicy", gym.make(MAZE_ID), seed=0)
+    model.save(tmp_path / "fresh")
+    assert TRLSD.load(tmp_path / "fresh").replay_buffer.size() == 0
+
+
+@pytest.mark.parametrize("given", ["folder", "folder with a slash", "folder named model.zip"])
+def test_a_save_to_a_folder_is_refused_naming_it(tmp_path, given):
+    """SB3 would save beside it, to PATH_2, with a warning a script does not see: refuse it, naming it."""
+    model = TRLSD("LinearPolicy", gym.make(MAZE_ID), seed=0)
+    folder = tmp_path / ("model.zip" if given.endswith("model.zip") else "runs")
+    folder.mkdir()
+    path = str(folder) + ("/" if given.endswith("slash") else "")
+    if given.endswith("model.zip"):
+        path = str(tmp_path / "model")  # .zip is added: the path saved to is the folder
+    with pytest.raises(ValueError, match="is a folder"):
+        model.save(path)
+    with pytest.raises(ValueError, match="is a folder"):
+        model.save_replay_buffer(folder)
+    assert sorted(os.listdir(tmp_path)) == [folder.name] and not os.listdir(folder)
+
+
+def test_a_save_to_a_file_object_and_a_path_without_suffix_keep_sb3s_semantics(tmp_path):
+    """A path without a suffix gets ``.zip``; a file object is written to as it is, and left open."""
+    model = TRLSD("LinearPolicy", gym.make(MAZE_ID), source_transitions=50, seed=0)
+    model.learn(total_timesteps=5)
+    model.save(tmp_path / "sub" / "model")
+    assert (tmp_path / "sub" / "model.zip").is_file()
+    stream = io.BytesIO()
+    model.save(stream)
+    assert not stream.closed
+    stream.seek(0)
+    np.testing.assert_array_equal(
+        TRLSD.load(stream).replay_buffer.packed_rows(), model.replay_buffer.packed_rows()
+    )
+
+
+def zip_without(source, target, entry):
+    with zipfile.ZipFile(source) as archive, zipfile.ZipFile(target, "w") as out:
+        for name in archive.namelist():
+            if name != entry:
+                out.writestr(name, archive.read(name))
+
+
+@pytest.mark.parametrize(
+    ("damage", "message"),
+    [
+        (lambda path, out: zip_without(path, out, "policy.pth"), r"lacks \['policy.pth'\]"),
+        (lambda path, out: zip_without(path, out, "pytorch_variables.pth"), "lacks"),
+        (lambda path, out: out.write_bytes(path.read_bytes()[:1000]), "cut short"),
+        (lambda path, out: out.write_bytes(b""), "cut short"),
+    ],
+    ids=["no-policy", "no-buffer-rows", "cut-short", "empty"],
+)
+def test_a_zip_that_is_not_a_whole_model_is_refused_naming_the_file(tmp_path, damage, message):
+    """SB3 fails on these with a KeyError (policy.optimizer) or an AssertionError, or loses the rows."""
+    model = TRLSD("LinearPolicy", gym.make(MAZE_ID), source_transitions=50, seed=0)
+    model.save(tmp_path / "model")
+    damage(tmp_path / "model.zip", tmp_path / "damaged.zip")
+    with pytest.raises(ValueError, match=message) as error:
+        TRLSD.load(tmp_path / "damaged")
+    assert "damaged.zip" in str(error.value)
