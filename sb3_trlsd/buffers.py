@@ -10,6 +10,7 @@ read through a ``BufferCursor``, so that a refit costs only the new rows.
 from __future__ import annotations
 
 import secrets
+import warnings
 from dataclasses import dataclass
 from typing import Any
 
@@ -21,7 +22,7 @@ from stable_baselines3.common.buffers import ReplayBuffer
 from sb3_trlsd.data import Transitions
 from sb3_trlsd.observations import split_observation, state_space_of, task_count_of
 
-__all__ = ["STORED_FIELDS", "BufferCursor", "SharedDynamicsReplayBuffer"]
+__all__ = ["STORED_FIELDS", "BufferCursor", "BufferFullWarning", "SharedDynamicsReplayBuffer"]
 
 # The per-row arrays of the buffer, in the column order of ``packed_rows``.
 STORED_FIELDS = (
@@ -34,6 +35,13 @@ STORED_FIELDS = (
     "tasks",
     "has_reward",
 )
+
+
+class BufferFullWarning(UserWarning):
+    """
+    The shared buffer is full and its ring starts replacing its oldest rows, which Fitted-Q then no longer
+    sees (source rows included). Warned once per buffer; a larger ``buffer_size`` keeps every row.
+    """
 
 
 @dataclass
@@ -89,6 +97,13 @@ class SharedDynamicsReplayBuffer(ReplayBuffer):
             raise ValueError(f"SharedDynamicsReplayBuffer needs a Discrete action space, got {action_space}")
         if not (isinstance(n_envs, (int, np.integer)) and n_envs >= 1):
             raise ValueError(f"n_envs must be an integer >= 1, got {n_envs!r}")
+        if isinstance(buffer_size, bool) or not (
+            isinstance(buffer_size, (int, np.integer)) and buffer_size >= 1
+        ):
+            # SB3 would make a buffer of 0 or less a buffer of one row, silently.
+            raise ValueError(
+                f"buffer_size must be an integer >= 1 (rows of the shared buffer), got {buffer_size!r}"
+            )
         # One column of rows: a step of n_envs envs is n_envs consecutive rows, so that transitions loaded
         # from elsewhere, and any number of envs, share one ring of buffer_size rows.
         super().__init__(
@@ -105,6 +120,7 @@ class SharedDynamicsReplayBuffer(ReplayBuffer):
         self.has_reward = np.zeros((self.buffer_size, self.n_envs), dtype=bool)
         self.n_added = 0  # rows ever added since the epoch began, in insertion order
         self.epoch = secrets.randbits(62)  # changes whenever rows are lost (wrap-around, reset)
+        self.warned_full = False
 
     def __setstate__(self, state: dict[str, Any]) -> None:
         # A buffer read back from disk is a new buffer for the cursors of the model that loads it.
@@ -157,10 +173,13 @@ class SharedDynamicsReplayBuffer(ReplayBuffer):
 
     def add_transitions(self, transitions: Transitions, keep_rewards: bool = False) -> None:
         """
-        Append transitions collected elsewhere (e.g. by ``collect_transitions`` on other tasks).
+        Append transitions collected elsewhere (e.g. by ``collect_transitions`` on other tasks). Once the
+        ring is full they replace the oldest rows, as SB3's buffers do (see ``check_room``).
 
         :param transitions: the transitions to append
         :param keep_rewards: keep their rewards (``has_reward``); False (the paper's setting) stores 0
+        :raises ValueError: for more transitions than ``buffer_size`` (the first would be overwritten by the
+            last), or rows that do not fit the env
         """
         self._check_rows(
             transitions.states,
@@ -170,6 +189,12 @@ class SharedDynamicsReplayBuffer(ReplayBuffer):
             transitions.tasks,
             expected_rows=len(transitions),
         )
+        if len(transitions) > self.buffer_size:
+            raise ValueError(
+                f"{len(transitions)} transitions do not fit a shared buffer of "
+                f"buffer_size={self.buffer_size}: the first {len(transitions) - self.buffer_size} would be "
+                f"overwritten by the last; make the buffer with buffer_size >= {len(transitions)}"
+            )
         # Written in chunks that stop at the end of the ring.
         start = 0
         while start < len(transitions):
@@ -231,10 +256,35 @@ class SharedDynamicsReplayBuffer(ReplayBuffer):
                 f"tasks must be in 0..{self.n_tasks - 1} (the env's tasks), got {np.unique(tasks)}"
             )
 
+    def check_room(self, n_rows: int) -> None:
+        """
+        Refuse ``n_rows`` new rows that would replace stored ones (loaded transitions must not push out a
+        source set, nor be pushed out, silently).
+
+        :param n_rows: the rows about to be added
+        :raises ValueError: naming the sizes and the ``buffer_size`` that holds them all
+        """
+        if self.size() + n_rows > self.buffer_size:
+            raise ValueError(
+                f"{n_rows} transitions do not fit the shared buffer next to its {self.size()} rows: "
+                f"buffer_size={self.buffer_size} has room for {self.buffer_size - self.size()}, and the ring "
+                f"would drop the oldest rows; make the model with buffer_size >= {self.size() + n_rows} "
+                "(plus the online steps to come)"
+            )
+
     def _before_write(self, n_rows: int) -> None:
         if self.full:
             # Rows are about to be lost: every cursor must start over.
             self.epoch = secrets.randbits(62)
+            if not getattr(self, "warned_full", False):
+                self.warned_full = True
+                warnings.warn(
+                    f"the shared buffer is full (buffer_size={self.buffer_size}): from now on each new row "
+                    "replaces its oldest one, a source row included, and Fitted-Q no longer sees it; make "
+                    "the model with a larger buffer_size to keep every row. Warned once.",
+                    BufferFullWarning,
+                    stacklevel=3,
+                )
 
     # ----------------------------------------------------------------- reading
     def _flat(self, array: np.ndarray) -> np.ndarray:

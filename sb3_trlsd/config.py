@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import copy
 import math
+import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -47,6 +48,7 @@ __all__ = [
     "STEP_HEAD_NAMES",
     "LearnerBuilder",
     "TRLSDConfig",
+    "check_algorithm_settings",
     "check_discount",
     "head_seed",
 ]
@@ -140,6 +142,41 @@ def check_discount(gamma: float) -> None:
     :raises ValueError: for NaN, infinite or out-of-range values
     """
     _require(0 < _finite("gamma", gamma) < 1, "gamma", "in (0, 1)", gamma)
+
+
+def check_algorithm_settings(
+    buffer_size: int,
+    learning_starts: int,
+    train_freq: int | tuple[int, str],
+    seed: int | None,
+    source_transitions: int | str | os.PathLike | None,
+) -> None:
+    """
+    Reject the settings ``TRLSD`` passes to SB3 that SB3 would take silently or fail on far from them,
+    naming each: a ``buffer_size`` of 0 or less (SB3 makes it one row) or NaN, a ``learning_starts`` that is
+    not a count (inf would never refit), a ``train_freq`` that is not a count of steps or episodes, a
+    ``seed`` numpy cannot take, and a number of ``source_transitions`` the buffer cannot hold.
+
+    :raises ValueError: naming the setting, its value and what it accepts
+    """
+    _integer("buffer_size", buffer_size, 1)
+    _integer("learning_starts", learning_starts, 0)
+    frequency, unit = (
+        train_freq if isinstance(train_freq, tuple) and len(train_freq) == 2 else (train_freq, "step")
+    )
+    ok = not isinstance(frequency, bool) and isinstance(frequency, (int, np.integer)) and frequency >= 1
+    if not (ok and unit in ("step", "episode")):
+        raise ValueError(
+            f"train_freq must be an integer >= 1 (steps) or (n, 'step') / (n, 'episode'), got {train_freq!r}"
+        )
+    seed_ok = isinstance(seed, (int, np.integer)) and not isinstance(seed, bool) and 0 <= seed < 2**32
+    _require(seed is None or seed_ok, "seed", "None or an integer in 0..2**32 - 1 (numpy's seeds)", seed)
+    if isinstance(source_transitions, (int, np.integer)) and source_transitions > buffer_size:
+        raise ValueError(
+            f"source_transitions={source_transitions} do not fit the shared buffer of "
+            f"buffer_size={buffer_size}: make the model with buffer_size >= {source_transitions} plus the "
+            "online steps to come"
+        )
 
 
 def head_seed(seed: int | None, task: int) -> int | None:

@@ -22,12 +22,12 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.noise import ActionNoise
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.policies import BasePolicy
-from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
+from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule, TrainFreq
 
 from sb3_trlsd.atomic_files import save_file
 from sb3_trlsd.buffers import SharedDynamicsReplayBuffer
 from sb3_trlsd.callbacks import TaskView, has_tensorboard, log_hyperparameters, log_task_picture
-from sb3_trlsd.config import LearnerBuilder, TRLSDConfig, check_discount
+from sb3_trlsd.config import LearnerBuilder, TRLSDConfig, check_algorithm_settings, check_discount
 from sb3_trlsd.data import Transitions
 from sb3_trlsd.engine import Engine, Run, explore_rng, tie_rng
 from sb3_trlsd.feature_maps import FeatureMap
@@ -291,6 +291,12 @@ class TRLSD(OffPolicyAlgorithm):
             reward_timing=reward_timing,
         )
         check_source_transitions(source_transitions)
+        check_algorithm_settings(buffer_size, learning_starts, train_freq, seed, source_transitions)
+        if env is None and _init_setup_model:
+            raise ValueError(
+                "env must be an env, a VecEnv or a registered env id to build the model, got None (None is "
+                "for TRLSD.load, which makes the model with _init_setup_model=False)"
+            )
         if isinstance(log_picture_every, bool) or not (
             isinstance(log_picture_every, (int, np.integer)) and log_picture_every >= 0
         ):
@@ -441,8 +447,10 @@ class TRLSD(OffPolicyAlgorithm):
         :param data: transitions (see ``collect_transitions``) or the path of a ``.npz`` saved from them
         :param keep_rewards: also fit each task's reward head on the rewards of its transitions; False
             (the paper's setting) uses them for the dynamics only
+        :raises ValueError: when they do not fit in the buffer next to its rows (``buffer_size``)
         """
         transitions = data if isinstance(data, Transitions) else Transitions.load(data)
+        self.replay_buffer.check_room(len(transitions))
         self._state_box.check(np.concatenate([transitions.states, transitions.next_states]), stacklevel=2)
         self.replay_buffer.add_transitions(transitions, keep_rewards=keep_rewards)
         if keep_rewards:
@@ -747,6 +755,21 @@ class TRLSD(OffPolicyAlgorithm):
         reset_num_timesteps: bool = True,
         progress_bar: bool = False,
     ) -> SelfTRLSD:
+        """
+        SB3's ``learn``, the source set loaded first (``source_transitions``).
+
+        :raises ValueError: when ``train_freq`` is more than ``total_timesteps``: SB3 collects a whole
+            ``train_freq`` (of steps, or of episodes of at least one step) before it looks at
+            ``total_timesteps``, so learn would run on past it
+        """
+        assert isinstance(self.train_freq, TrainFreq)  # made one by _setup_model
+        frequency, unit = self.train_freq.frequency, self.train_freq.unit.value
+        if frequency > total_timesteps:
+            raise ValueError(
+                f"train_freq={frequency} {unit}s is more than total_timesteps={total_timesteps}: SB3 "
+                "collects a whole train_freq before it stops, so learn would run on past total_timesteps; "
+                f"make the model with train_freq <= {total_timesteps}"
+            )
         self._load_source_once()
         super().learn(
             total_timesteps=total_timesteps,
@@ -788,12 +811,13 @@ class TRLSD(OffPolicyAlgorithm):
 
 def _policy_class(policy: str | type[TaskQPolicy], aliases: dict[str, type[BasePolicy]]) -> type[BasePolicy]:
     """
-    The policy class of ``policy``: a class as it is, or the class of a name among ``aliases``.
+    The policy class of ``policy``: a ``TaskQPolicy`` subclass as it is, or the class of a name among
+    ``aliases``.
 
-    :raises ValueError: for an unknown name
+    :raises ValueError: for an unknown name, or anything else (another class, a number)
     """
-    if not isinstance(policy, str):
+    if isinstance(policy, type) and issubclass(policy, TaskQPolicy):
         return policy
-    if policy not in aliases:
-        raise ValueError(f"policy must be one of {sorted(aliases)} or a policy class, got {policy!r}")
+    if not isinstance(policy, str) or policy not in aliases:
+        raise ValueError(f"policy must be one of {sorted(aliases)} or a TaskQPolicy subclass, got {policy!r}")
     return aliases[policy]

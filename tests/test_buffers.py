@@ -1,6 +1,7 @@
 """SharedDynamicsReplayBuffer: storage by task, source loading, relabelling for a target task."""
 
 import pickle
+import warnings
 
 import gymnasium as gym
 import numpy as np
@@ -8,7 +9,7 @@ import pytest
 from gymnasium import spaces
 
 from sb3_trlsd import SharedDynamicsReplayBuffer
-from sb3_trlsd.buffers import STORED_FIELDS, BufferCursor
+from sb3_trlsd.buffers import STORED_FIELDS, BufferCursor, BufferFullWarning
 from sb3_trlsd.observations import state_space_of
 from tests.conftest import MAZE_ID
 
@@ -77,9 +78,11 @@ def test_a_cursor_reads_each_new_row_once_and_starts_over_when_rows_are_lost(
     assert restart and len(rows) == buffer.size()
     rows, restart = buffer.read_new(cursor)
     assert not restart and len(rows) == 0
-    add_online(buffer, np.random.default_rng(1), task=0, n=600)
-    rows, restart = buffer.read_new(cursor)
     wrapped = len(source_transitions) + 600 > buffer_size
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", BufferFullWarning)  # wrapping is what this test is about
+        add_online(buffer, np.random.default_rng(1), task=0, n=600)
+    rows, restart = buffer.read_new(cursor)
     assert restart == wrapped
     expected = buffer.transitions() if wrapped else buffer.transitions(start=len(source_transitions))
     np.testing.assert_array_equal(rows.states, expected.states)
@@ -193,3 +196,47 @@ def test_state_space_must_be_a_box_or_a_state_task_dict():
         state_space_of(spaces.Discrete(3))
     with pytest.raises(ValueError, match="observation_space"):
         state_space_of(spaces.Dict({"position": spaces.Box(0, 1, (2,))}))
+
+
+@pytest.mark.parametrize(
+    "size", [0, -3, np.nan, 2.5, True], ids=["zero", "negative", "nan", "fraction", "bool"]
+)
+def test_a_buffer_size_that_is_not_a_count_of_rows_is_refused(maze_spaces, size):
+    """SB3 makes a buffer of 0 or fewer rows a buffer of one row, silently, and fails on NaN in numpy."""
+    with pytest.raises(ValueError, match="buffer_size must be an integer >= 1"):
+        make_buffer(maze_spaces, size=size)
+
+
+def test_more_transitions_than_the_buffer_holds_are_refused_not_cut(maze_spaces, source_transitions):
+    """The ring kept the last buffer_size rows of the batch and dropped the first ones, with no word."""
+    buffer = make_buffer(maze_spaces, size=len(source_transitions) - 1)
+    with pytest.raises(ValueError, match=f"buffer_size >= {len(source_transitions)}"):
+        buffer.add_transitions(source_transitions)
+    assert buffer.size() == 0
+
+
+def test_the_ring_warns_once_when_it_starts_replacing_rows(maze_spaces, source_transitions):
+    """
+    Online rows wrapping the ring replace the oldest, source rows first, as SB3's buffers do: Fitted-Q then
+    no longer sees them, which must not happen silently. Warned once, naming buffer_size.
+    """
+    buffer = make_buffer(maze_spaces, size=len(source_transitions) + 5)
+    buffer.add_transitions(source_transitions)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        add_online(buffer, np.random.default_rng(0), task=0, n=5)  # fills the buffer, replaces nothing
+    with pytest.warns(BufferFullWarning, match=f"buffer_size={len(source_transitions) + 5}"):
+        add_online(buffer, np.random.default_rng(1), task=0, n=1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        add_online(buffer, np.random.default_rng(2), task=0, n=20)
+    assert buffer.size() == buffer.buffer_size
+
+
+def test_check_room_refuses_rows_that_would_push_out_stored_ones(maze_spaces, source_transitions):
+    """Loaded transitions must fit beside the rows stored: the error names the buffer_size holding both."""
+    buffer = make_buffer(maze_spaces, size=len(source_transitions) + 10)
+    buffer.add_transitions(source_transitions)
+    buffer.check_room(10)
+    with pytest.raises(ValueError, match=f"buffer_size >= {len(source_transitions) + 11}"):
+        buffer.check_room(11)
