@@ -19,7 +19,7 @@ import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.buffers import ReplayBuffer
 
-from sb3_trlsd.data import Transitions
+from sb3_trlsd.data import Transitions, as_flags
 from sb3_trlsd.observations import split_observation, state_space_of, task_count_of
 
 __all__ = ["STORED_FIELDS", "BufferCursor", "BufferFullWarning", "SharedDynamicsReplayBuffer"]
@@ -152,7 +152,7 @@ class SharedDynamicsReplayBuffer(ReplayBuffer):
         actions = np.asarray(action).reshape(-1)
         rewards = np.asarray(reward, dtype=np.float64).reshape(-1)
         self._check_rows(states, next_states, actions, rewards, tasks, expected_rows=len(states))
-        dones = np.asarray(done).reshape(-1)
+        dones = as_flags("done", np.asarray(done).reshape(-1))
         if len(dones) != len(states) or len(infos) != len(states):
             raise ValueError(
                 f"expected one done and one info per env ({len(states)}), got {len(dones)}, {len(infos)}"
@@ -236,6 +236,7 @@ class SharedDynamicsReplayBuffer(ReplayBuffer):
             if not np.all(np.isfinite(value)):
                 bad = np.asarray(value)[~np.isfinite(value).all(axis=1)]
                 raise ValueError(f"a {name} is not finite (NaN or inf): {bad[:3]}")
+            self._check_integer_states(name, np.asarray(value))
         if np.shape(rewards) != (expected_rows,) or np.shape(actions) != (expected_rows,):
             raise ValueError(
                 f"expected {expected_rows} rewards and actions, got {np.shape(rewards)}, {np.shape(actions)}"
@@ -254,6 +255,25 @@ class SharedDynamicsReplayBuffer(ReplayBuffer):
         if len(tasks) and (tasks.min() < 0 or tasks.max() >= self.n_tasks):
             raise ValueError(
                 f"tasks must be in 0..{self.n_tasks - 1} (the env's tasks), got {np.unique(tasks)}"
+            )
+
+    def _check_integer_states(self, name: str, states: np.ndarray) -> None:
+        """On a Box of integers, states that the Box's dtype stores as they are, or a ValueError."""
+        dtype = np.dtype(self.observation_space.dtype)
+        if not np.issubdtype(dtype, np.integer):
+            return
+        fractional = states != np.round(states)
+        if fractional.any():
+            raise ValueError(
+                f"{name}s must be integers on this env's state Box of dtype {dtype}, which would store "
+                f"{float(states[fractional][0])} as {np.trunc(states[fractional][0]):.0f}: round the states "
+                "(np.rint) before they are stored, or give the env a float Box to keep them"
+            )
+        limits = np.iinfo(dtype)
+        if states.size and (states.min() < limits.min or states.max() > limits.max):
+            raise ValueError(
+                f"{name}s must fit the state Box's dtype {dtype} ({limits.min}..{limits.max}), got values "
+                f"from {states.min()} to {states.max()}: give the env a wider dtype"
             )
 
     def check_room(self, n_rows: int) -> None:

@@ -19,6 +19,7 @@ __all__ = [
     "StateOutsideBoxWarning",
     "check_action_space",
     "outside_box_message",
+    "read_observation",
     "split_observation",
     "state_space_of",
     "states_outside",
@@ -31,7 +32,8 @@ def state_space_of(observation_space: spaces.Space) -> spaces.Box:
     The Box holding the state: the observation space itself, or its ``"state"`` entry for the
     ``{"state", "task"}`` Dict observations of multi-task envs.
 
-    :raises ValueError: for any other observation space, or a ``"task"`` Discrete not starting at 0
+    :raises ValueError: for any other observation space, a ``"task"`` Discrete not starting at 0, or a
+        state Box that is not a vector of at least one number
     """
     if isinstance(observation_space, spaces.Dict) and isinstance(
         observation_space.spaces.get("state"), spaces.Box
@@ -71,6 +73,11 @@ def state_space_of(observation_space: spaces.Space) -> spaces.Box:
         raise ValueError(
             f"the state Box must be one-dimensional (a vector), got shape {state_space.shape}: flatten it "
             "(gymnasium.wrappers.FlattenObservation)"
+        )
+    if state_space.shape[0] == 0:
+        raise ValueError(
+            "the state Box must have at least one dimension, got shape (0,): TRLSD learns a task's reward "
+            "and Q as functions of the state; give the env a state of at least one number"
         )
     return state_space
 
@@ -144,6 +151,35 @@ def split_observation(
             "from them: check the env's observations"
         )
     return states, tasks.astype(np.int64)
+
+
+def read_observation(obs: Any, observation_space: spaces.Space) -> tuple[np.ndarray, np.ndarray]:
+    """
+    ``split_observation`` of an observation that TRLSD acts on, checked against the env's observation
+    space: a Dict space's observations must be ``{"state", "task"}`` dicts, their tasks in its ``"task"``
+    Discrete, and the states finite.
+
+    :param obs: an observation (d,) or a batch (n, d), or a ``{"state", "task"}`` Dict of them
+    :param observation_space: the env's observation space
+    :return: states (n, d) float64 and tasks (n,) int64
+    :raises ValueError: naming what does not fit the space, and what to pass instead
+    """
+    state_dim = state_space_of(observation_space).shape[0]
+    n_tasks = task_count_of(observation_space)
+    if isinstance(observation_space, spaces.Dict) and not isinstance(obs, dict):
+        raise ValueError(
+            f"the observation must be a {{'state': ..., 'task': ...}} dict, as the env's Dict observation "
+            f"space gives, got a {type(obs).__name__} of shape {np.shape(_as_array(obs))}: pass "
+            "{'state': states, 'task': tasks}"
+        )
+    states, tasks = split_observation(obs, state_dim, require_finite=True)
+    if np.any((tasks < 0) | (tasks >= n_tasks)):
+        raise ValueError(
+            f"the observation's tasks must be in 0..{n_tasks - 1} (the observation space's 'task' "
+            f"Discrete({n_tasks})), got {np.unique(tasks[(tasks < 0) | (tasks >= n_tasks)])}: an env (or a "
+            "caller) gives a task outside its observation space; make its 'task' Discrete hold every task"
+        )
+    return states, tasks
 
 
 class StateOutsideBoxWarning(UserWarning):

@@ -28,11 +28,11 @@ from sb3_trlsd.atomic_files import save_file
 from sb3_trlsd.buffers import SharedDynamicsReplayBuffer
 from sb3_trlsd.callbacks import TaskView, has_tensorboard, log_hyperparameters, log_task_picture
 from sb3_trlsd.config import LearnerBuilder, TRLSDConfig, check_algorithm_settings, check_discount
-from sb3_trlsd.data import Transitions
+from sb3_trlsd.data import Transitions, as_flags
 from sb3_trlsd.engine import Engine, Run, explore_rng, tie_rng
 from sb3_trlsd.feature_maps import FeatureMap
 from sb3_trlsd.fqi import FQIResult
-from sb3_trlsd.observations import StateBoxMonitor, check_action_space, split_observation, state_space_of
+from sb3_trlsd.observations import StateBoxMonitor, check_action_space, read_observation, state_space_of
 from sb3_trlsd.persistence import BUFFER_ROWS, check_model_zip, empty_rows, read_replay_buffer
 from sb3_trlsd.policies import LinearPolicy, MlpPolicy, TaskQPolicy
 from sb3_trlsd.q_functions import PolicyQFunctions
@@ -473,8 +473,7 @@ class TRLSD(OffPolicyAlgorithm):
         # its first step (unless ``first_fit`` waits), the greedy action, and the task's exploration.
         if self.num_timesteps < learning_starts or self._last_obs is None:
             return super()._sample_action(learning_starts, action_noise, n_envs)
-        obs, state_dim = self._last_obs, self.replay_buffer.obs_shape[0]
-        states, tasks = split_observation(obs, state_dim, require_finite=True)
+        states, tasks = read_observation(self._last_obs, self.observation_space)
         self._state_box.check(states, stacklevel=4)
         actions = self.engine.act(np.zeros(len(tasks), dtype=np.int64), states, tasks)
         return actions, actions
@@ -522,7 +521,7 @@ class TRLSD(OffPolicyAlgorithm):
         :param obs: one observation of the env (not batched)
         :return: the action
         """
-        states, tasks = split_observation(obs, self.replay_buffer.obs_shape[0], require_finite=True)
+        states, tasks = read_observation(obs, self.observation_space)
         self._state_box.check(states, stacklevel=2)
         return int(self.engine.act(np.zeros(1, dtype=np.int64), states[:1], tasks[:1])[0])
 
@@ -548,6 +547,10 @@ class TRLSD(OffPolicyAlgorithm):
         :param terminated: the step reached an absorbing state
         :param truncated: the trajectory was cut (no absorbing state: FQI bootstraps through it)
         """
+        terminated, truncated = (
+            bool(as_flags("terminated", terminated)),
+            bool(as_flags("truncated", truncated)),
+        )
         self.replay_buffer.add(
             obs,
             next_obs,
@@ -795,7 +798,7 @@ class TRLSD(OffPolicyAlgorithm):
         ``tie_break`` unless ``deterministic`` (then the first). A task whose Q-function was never fitted is
         warned about, once per task.
         """
-        states, tasks = split_observation(observation, self.replay_buffer.obs_shape[0], require_finite=True)
+        states, tasks = read_observation(observation, self.observation_space)
         self._state_box.check(states, stacklevel=2)
         for task in np.unique(tasks):
             learner = self.task_learners.get(int(task))

@@ -2,6 +2,7 @@
 
 import pickle
 import warnings
+from dataclasses import replace
 
 import gymnasium as gym
 import numpy as np
@@ -127,6 +128,8 @@ def test_packed_rows_restore_the_buffer_exactly(maze_spaces, source_transitions)
         ({"task": -1}, "tasks"),
         ({"state": [1.0, 2.0, 3.0]}, "shape"),
         ({"action": 4}, "actions"),
+        ({"done": 0.5}, "done must be booleans"),
+        ({"done": 2}, "done must be booleans"),
     ],
     ids=[
         "nan-reward",
@@ -137,6 +140,8 @@ def test_packed_rows_restore_the_buffer_exactly(maze_spaces, source_transitions)
         "task-minus-1",
         "3-d",
         "action-4",
+        "half-done",
+        "done-of-2",
     ],
 )
 def test_a_bad_online_transition_is_refused_before_anything_is_stored(maze_spaces, change, message):
@@ -144,7 +149,15 @@ def test_a_bad_online_transition_is_refused_before_anything_is_stored(maze_space
     buffer = make_buffer(maze_spaces)
     add_online(buffer, np.random.default_rng(3), task=1, n=3)
     before = buffer.packed_rows()
-    values = {"state": [1.0, 1.0], "next_state": [1.5, 1.0], "reward": 0.0, "task": 1, "action": 2, **change}
+    values = {
+        "state": [1.0, 1.0],
+        "next_state": [1.5, 1.0],
+        "reward": 0.0,
+        "task": 1,
+        "action": 2,
+        "done": False,
+    }
+    values |= change
     obs = {"state": np.array([values["state"]], dtype=np.float32), "task": np.array([values["task"]])}
     next_obs = {
         "state": np.array([values["next_state"]], dtype=np.float32),
@@ -156,7 +169,7 @@ def test_a_bad_online_transition_is_refused_before_anything_is_stored(maze_space
             next_obs,
             np.array([[values["action"]]]),
             np.array([values["reward"]]),
-            np.array([False]),
+            np.array([values["done"]]),
             [{}],
         )
     np.testing.assert_array_equal(buffer.packed_rows(), before)
@@ -240,3 +253,22 @@ def test_check_room_refuses_rows_that_would_push_out_stored_ones(maze_spaces, so
     buffer.check_room(10)
     with pytest.raises(ValueError, match=f"buffer_size >= {len(source_transitions) + 11}"):
         buffer.check_room(11)
+
+
+@pytest.mark.parametrize("dtype", [np.int64, np.uint8], ids=["int64", "uint8"])
+def test_float_states_on_a_box_of_integers_are_refused_not_truncated(source_transitions, dtype):
+    """An integer Box stored 1.7 as 1 (numpy's cast), silently: refused, naming the dtype and the fix."""
+    buffer = SharedDynamicsReplayBuffer(100, spaces.Box(0, 5, (2,), dtype), spaces.Discrete(4), device="cpu")
+    floats = replace(source_transitions.take(np.arange(10)), tasks=np.zeros(10, dtype=np.int64))
+    with pytest.raises(
+        ValueError, match=f"must be integers on this env's state Box of dtype {np.dtype(dtype)}"
+    ):
+        buffer.add_transitions(floats)
+    assert buffer.size() == 0
+    rounded = replace(floats, states=np.rint(floats.states), next_states=np.rint(floats.next_states))
+    buffer.add_transitions(rounded)
+    np.testing.assert_array_equal(buffer.transitions().states, rounded.states)
+    out_of_dtype = replace(rounded, states=np.full_like(rounded.states, 300.0))
+    if dtype is np.uint8:  # 300 would wrap round to 44
+        with pytest.raises(ValueError, match="must fit the state Box's dtype uint8"):
+            buffer.add_transitions(out_of_dtype)

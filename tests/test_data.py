@@ -184,3 +184,29 @@ def test_envs_without_a_sampler_are_stepped_one_transition_at_a_time():
     assert data.terminations.any() and np.all(data.tasks == 0)
     ended = data.terminations[:-1] | data.truncations[:-1]
     np.testing.assert_array_equal(data.next_states[:-1][~ended], data.states[1:][~ended])
+
+
+@pytest.mark.parametrize(
+    ("name", "flags", "message"),
+    [
+        ("truncations", np.full(3, 0.5), r"truncations must be booleans .* got \[0.5\]"),
+        ("truncations", np.full(3, 2), r"truncations must be booleans .* got \[2\]"),
+        ("terminations", np.array([0, 1, 3]), r"terminations must be booleans .* got \[3\]"),
+    ],
+    ids=["half-truncation", "truncation-of-2", "termination-of-3"],
+)
+def test_flags_that_are_not_booleans_are_refused_by_name(name, flags, message):
+    """0.5 failed inside numpy's bitwise_or when stored; 2 was stored as a done of 2, silently."""
+    arrays = {"states": np.zeros((3, 2)), "actions": np.zeros(3, int), "next_states": np.zeros((3, 2))}
+    arrays |= {"rewards": np.zeros(3), "tasks": np.zeros(3, int)}
+    arrays |= {"truncations": np.zeros(3, bool), "terminations": np.zeros(3, bool), name: flags}
+    with pytest.raises(ValueError, match=message):
+        Transitions(**arrays)
+
+
+def test_flags_of_0_and_1_are_taken_as_booleans():
+    """Integer flags of 0 and 1 (a CSV's, say) are what they mean: stored as booleans."""
+    transitions = Transitions(
+        np.zeros((2, 2)), np.zeros(2, int), np.zeros((2, 2)), np.zeros(2), np.zeros(2, int), [0, 1], [1, 0]
+    )
+    assert transitions.truncations.dtype == bool and transitions.truncations.tolist() == [False, True]

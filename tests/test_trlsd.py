@@ -429,3 +429,33 @@ def test_a_train_freq_beyond_total_timesteps_is_refused_before_learn_runs_past_i
     with pytest.raises(ValueError, match=r"train_freq=1000000000000 (step|episode)s .* train_freq <= 10"):
         model.learn(total_timesteps=10)
     assert model.num_timesteps == 0
+
+
+class TaskOutside(gym.Wrapper):
+    """The maze (its 'task' Discrete(25)) whose observations, from step ``at`` on, name task 30."""
+
+    def __init__(self, at):
+        super().__init__(gym.make(MAZE_ID, tasks=[(1, 1), (5, 5)]))
+        self.at, self.steps = at, 0
+
+    def step(self, action):
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        self.steps += 1
+        return ({**obs, "task": 30} if self.steps >= self.at else obs), reward, terminated, truncated, info
+
+
+def test_an_env_emitting_a_task_outside_its_discrete_is_named_by_learn():
+    """Acting on it failed with an IndexError inside the policy's parameters (its Q of task 30)."""
+    model = TRLSD("LinearPolicy", TaskOutside(at=3), seed=0)
+    with pytest.raises(ValueError, match=r"tasks must be in 0\.\.24 .* got \[30\]"):
+        model.learn(total_timesteps=20)
+    assert max(model.task_learners, default=0) < 25
+
+
+def test_predict_of_an_array_on_a_dict_env_asks_for_the_dict():
+    """A plain state on a {"state", "task"} env failed in SB3 with an IndexError about indices."""
+    model = TRLSD("LinearPolicy", gym.make(MAZE_ID, tasks=[(1, 1), (5, 5)]), seed=0)
+    with pytest.raises(ValueError, match=r"pass \{'state': states, 'task': tasks\}"):
+        model.predict(np.array([1.0, 1.0], dtype=np.float32))
+    with pytest.raises(ValueError, match="dict"):
+        model.act(np.array([1.0, 1.0], dtype=np.float32))

@@ -106,10 +106,12 @@ def test_a_model_saved_without_its_rows_warns_at_learn_and_names_the_call(tmp_pa
         loaded.learn(total_timesteps=2)
 
 
-def online_step(model, reward=0.0, state=(1.0, 1.0), next_state=(1.5, 1.0), task=0):
+def online_step(
+    model, reward=0.0, state=(1.0, 1.0), next_state=(1.5, 1.0), task=0, terminated=False, truncated=False
+):
     obs = {"state": np.array(state, dtype=np.float32), "task": task}
     next_obs = {"state": np.array(next_state, dtype=np.float32), "task": task}
-    model.add_online_transition(obs, 2, reward, next_obs, False, False)
+    model.add_online_transition(obs, 2, reward, next_obs, terminated, truncated)
 
 
 @pytest.mark.parametrize(
@@ -120,8 +122,20 @@ def online_step(model, reward=0.0, state=(1.0, 1.0), next_state=(1.5, 1.0), task
         ({"state": (np.nan, 1.0)}, "state"),
         ({"next_state": (1.0, np.inf)}, "next state"),
         ({"task": 25}, "tasks"),
+        ({"truncated": 0.5}, "truncated must be booleans"),
+        ({"truncated": 2}, "truncated must be booleans"),
+        ({"terminated": 2}, "terminated must be booleans"),
     ],
-    ids=["nan-reward", "inf-reward", "nan-state", "inf-next-state", "task-out-of-range"],
+    ids=[
+        "nan-reward",
+        "inf-reward",
+        "nan-state",
+        "inf-next-state",
+        "task-out-of-range",
+        "half-truncation",
+        "truncation-of-2",
+        "termination-of-2",
+    ],
 )
 def test_a_bad_online_transition_leaves_the_model_as_it_was_and_learning(source_transitions, step, message):
     """Rejected before anything is stored: buffer, head, step count and refits unchanged; then it learns."""
