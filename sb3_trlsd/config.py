@@ -17,6 +17,7 @@ from __future__ import annotations
 import copy
 import math
 import os
+import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -28,7 +29,13 @@ from sb3_trlsd.engine import TIE_BREAKS, Exploration
 from sb3_trlsd.feature_choice import FEATURE_MAPS, GRID_SHAPES, default_kernel_width, make_feature_map
 from sb3_trlsd.feature_maps import FeatureMap
 from sb3_trlsd.fqi import DEFAULT_TOL, STOP_RULES
-from sb3_trlsd.observations import state_space_of, task_count_of
+from sb3_trlsd.observations import (
+    MAX_BOX_SIDE,
+    WideStateBoxWarning,
+    state_space_of,
+    task_count_of,
+    wide_box_message,
+)
 from sb3_trlsd.reward_heads import (
     CONFIDENCE_BOUND_HEAD_NAMES,
     REWARD_HEAD_NAMES,
@@ -79,6 +86,16 @@ FEATURES_SIMILARITY_SIGMA = 0.2  # eq. 7 compares feature vectors, whose scale i
 # them moving by a few 1e-4.
 FQI_TOLS = {"theta": DEFAULT_TOL, "targets": 1e-3}
 
+# The widths of the Gaussians (sigma, rbf_sigma: fractions of the state box; rbf_overlap: spacings) that
+# tell states apart. Below MIN_WIDTH, two float32 states that differ at all, by one rounding step (~6e-8 of
+# the box), are over 38 widths apart, where exp(-x^2 / 2) underflows float64: every similarity between two
+# states and every feature away from its centre is 0. Above MAX_WIDTH, exp(-1 / (2 w^2)) rounds to 1 in
+# float64 across the whole box: every similarity and every feature is 1.
+MIN_WIDTH, MAX_WIDTH = 1e-9, 1e8
+DEGENERATE = (
+    "a narrower one makes every similarity or feature 0 between distinct states, a wider one 1 across the box"
+)
+
 Widths = float | Sequence[float] | None
 Counts = int | Sequence[int] | str | None
 Bounds = tuple[Sequence[float], Sequence[float]]
@@ -110,9 +127,9 @@ def _widths(name: str, value: Widths, meaning: str) -> None:
     array = np.asarray(value if value is not None else 1.0)
     ok = array.dtype.kind in "fiu" and array.ndim <= 1 and array.size and np.all(np.isfinite(array))
     _require(
-        bool(ok) and bool(np.all(array > 0)),
+        bool(ok) and bool(np.all(array >= MIN_WIDTH)) and bool(np.all(array <= MAX_WIDTH)),
         name,
-        f"None or a width > 0 (or one per dimension): {meaning}",
+        f"None or a width in [{MIN_WIDTH:g}, {MAX_WIDTH:g}] (or one per dimension), {meaning}: {DEGENERATE}",
         value,
     )
 
@@ -316,7 +333,10 @@ class TRLSDConfig:
         _integer("max_features", self.max_features, 1, none_allowed=True)
         if self.rbf_overlap is not None:
             _require(
-                _finite("rbf_overlap", self.rbf_overlap) > 0, "rbf_overlap", "a number > 0", self.rbf_overlap
+                MIN_WIDTH <= _finite("rbf_overlap", self.rbf_overlap) <= MAX_WIDTH,
+                "rbf_overlap",
+                f"a width in [{MIN_WIDTH:g}, {MAX_WIDTH:g}] spacings of the centres: {DEGENERATE}",
+                self.rbf_overlap,
             )
             if self.rbf_sigma is not None:
                 raise ValueError(
@@ -413,7 +433,8 @@ class TRLSDConfig:
     def state_box(self, observation_space: spaces.Space) -> tuple[np.ndarray, np.ndarray]:
         """
         The box [low, high] normalised coordinates are taken in: ``state_bounds`` if given, else the state
-        Box's bounds, which must then be finite.
+        Box's bounds, which must then be finite; a side of the Box wider than ``MAX_BOX_SIDE`` is warned of
+        (``WideStateBoxWarning``).
 
         :param observation_space: the env's observation space (a state Box, or a ``{"state", "task"}`` Dict)
         :return: low and high, (d,) float64
@@ -449,6 +470,9 @@ class TRLSDConfig:
                 "so that its observation space is finite (gymnasium.wrappers.TransformObservation with "
                 "np.clip and a bounded Box, then RescaleObservation if wanted)"
             )
+        wide = np.flatnonzero(high - low > MAX_BOX_SIDE)
+        if len(wide):
+            warnings.warn(wide_box_message(wide.tolist(), low, high), WideStateBoxWarning, stacklevel=2)
         return low, high
 
     def similarity_width(self, low: np.ndarray, high: np.ndarray) -> float | np.ndarray:

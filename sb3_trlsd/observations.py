@@ -9,14 +9,17 @@ states found outside the box TRLSD's features and similarities are taken relativ
 from __future__ import annotations
 
 import warnings
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 from gymnasium import spaces
 
 __all__ = [
+    "MAX_BOX_SIDE",
     "StateBoxMonitor",
     "StateOutsideBoxWarning",
+    "WideStateBoxWarning",
     "check_action_space",
     "outside_box_message",
     "read_observation",
@@ -24,6 +27,7 @@ __all__ = [
     "state_space_of",
     "states_outside",
     "task_count_of",
+    "wide_box_message",
 ]
 
 
@@ -233,6 +237,38 @@ def outside_box_message(outside: dict[int, float], low: np.ndarray, high: np.nda
         "relative to the box, the state Box's bounds or state_bounds: outside it they extrapolate. Give "
         "state_bounds=(low, high) with the range the states really take, or wrap the env so that its states "
         "stay in its Box (gymnasium.wrappers.TransformObservation with np.clip). Warned once."
+    )
+
+
+class WideStateBoxWarning(UserWarning):
+    """
+    The state Box is so wide (a side beyond ``MAX_BOX_SIDE``) that TRLSD's features and similarities, taken
+    relative to it, cannot tell states of ordinary scale apart. Give ``state_bounds``.
+    """
+
+
+# Beyond this side, in the env's units, a Box is most likely a stand-in for an unbounded dimension
+# (Gymnasium's envs use +-float32 max, 3.4e38): states within +-1e3 of each other span less than a thousandth
+# of it, where features and similarities of widths a few hundredths of the box (the defaults) differ by well
+# under 1%; at 3.4e38 they are equal to float64's precision, and so is Q at every state.
+MAX_BOX_SIDE = 1e6
+
+
+def wide_box_message(dimensions: Sequence[int], low: np.ndarray, high: np.ndarray) -> str:
+    """
+    The warning for a state Box whose side exceeds ``MAX_BOX_SIDE`` in ``dimensions``: the sides, and what
+    to give instead.
+
+    :param dimensions: the dimensions too wide
+    :param low: (d,) lower bounds of the box
+    :param high: (d,) upper bounds of the box
+    """
+    found = ", ".join(f"dimension {d}: [{low[d]:.3g}, {high[d]:.3g}]" for d in dimensions)
+    return (
+        f"the state Box is wider than {MAX_BOX_SIDE:.0e} in {found}: TRLSD takes its features and "
+        "similarities relative to the box, so states of ordinary scale all sit near its centre with the same "
+        "features, and Q is the same at every state; give state_bounds=(low, high) with the range the states "
+        "really take"
     )
 
 

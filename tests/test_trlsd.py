@@ -459,3 +459,31 @@ def test_predict_of_an_array_on_a_dict_env_asks_for_the_dict():
         model.predict(np.array([1.0, 1.0], dtype=np.float32))
     with pytest.raises(ValueError, match="dict"):
         model.act(np.array([1.0, 1.0], dtype=np.float32))
+
+
+@pytest.mark.parametrize(
+    ("policy", "kappa", "message"),
+    [
+        ("LinearPolicy", 1e30, "the Q-function Fitted-Q gave task 0 .* is not finite"),
+        ("LinearPolicy", 1e40, "beyond float32's range"),
+        ("MlpPolicy", 1e40, "beyond float32's range"),
+        ("LinearPolicy", 1e308, "the relabelled rewards of task 0 are not finite"),
+    ],
+    ids=[
+        "linear-q-overflows",
+        "linear-returns-beyond-float32",
+        "mlp-returns-beyond-float32",
+        "rewards-overflow",
+    ],
+)
+def test_optimism_that_overflows_q_is_refused_naming_kappa(source_transitions, policy, kappa, message):
+    """
+    kappa = 1e40 gave a NaN Q, on which predict took action 0 at every state, silently (the MLP failed in
+    torch's clamp): the refit raises, naming kappa.
+    """
+    model = TRLSD(policy, gym.make(MAZE_ID), reward_head="ridge", kappa=kappa, seed=0)
+    model.load_transitions(source_transitions)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the overflows' own on the way
+        with pytest.raises(ValueError, match=f"{message}.*lower kappa"):
+            model.learn(total_timesteps=5)
