@@ -759,7 +759,10 @@ class TRLSD(OffPolicyAlgorithm):
         progress_bar: bool = False,
     ) -> SelfTRLSD:
         """
-        SB3's ``learn``, the source set loaded first (``source_transitions``).
+        SB3's ``learn``, the source set loaded first (``source_transitions``). A learn that raises (an env
+        failing inside ``step``, say) leaves the next one to start from a reset of the env: the step it broke
+        off may have moved the env on, and SB3's last observation paired with the next one would store a
+        transition that never happened.
 
         :raises ValueError: when ``train_freq`` is more than ``total_timesteps``: SB3 collects a whole
             ``train_freq`` (of steps, or of episodes of at least one step) before it looks at
@@ -774,14 +777,18 @@ class TRLSD(OffPolicyAlgorithm):
                 f"make the model with train_freq <= {total_timesteps}"
             )
         self._load_source_once()
-        super().learn(
-            total_timesteps=total_timesteps,
-            callback=callback,
-            log_interval=log_interval,
-            tb_log_name=tb_log_name,
-            reset_num_timesteps=reset_num_timesteps,
-            progress_bar=progress_bar,
-        )
+        try:
+            super().learn(
+                total_timesteps=total_timesteps,
+                callback=callback,
+                log_interval=log_interval,
+                tb_log_name=tb_log_name,
+                reset_num_timesteps=reset_num_timesteps,
+                progress_bar=progress_bar,
+            )
+        except BaseException:
+            self._last_obs = None  # SB3's _setup_learn resets the env on None
+            raise
         # SB3 dumps the logs every log_interval episodes: a run's last values are kept too.
         self.dump_logs()
         return self

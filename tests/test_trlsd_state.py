@@ -15,6 +15,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch as th
+from stable_baselines3.common.vec_env import DummyVecEnv
 
 from sb3_trlsd import TRLSD, TaskLearner
 from sb3_trlsd.fqi import DEFAULT_TOL
@@ -385,3 +386,50 @@ def test_a_zip_that_is_not_a_whole_model_is_refused_naming_the_file(tmp_path, da
     with pytest.raises(ValueError, match=message) as error:
         TRLSD.load(tmp_path / "damaged")
     assert "damaged.zip" in str(error.value)
+
+
+class Counter(gym.Env):
+    """
+    State t, the steps since the reset; every step moves t on by one. ``fail_at``: the step call that raises
+    (counted over the env's life) after the state has moved on, as a simulator failing midway does.
+    """
+
+    observation_space = gym.spaces.Box(0, 100, (1,), np.float32)
+    action_space = gym.spaces.Discrete(2)
+
+    def __init__(self, fail_at=None):
+        self.fail_at, self.calls, self.t = fail_at, 0, 0
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        self.t = 0
+        return np.zeros(1, np.float32), {}
+
+    def step(self, action):
+        self.calls += 1
+        self.t += 1
+        if self.calls == self.fail_at:
+            raise RuntimeError("the simulator failed")
+        return np.full(1, self.t, np.float32), 0.0, False, self.t >= 90, {}
+
+
+@pytest.mark.parametrize(
+    "envs",
+    [[Counter(fail_at=7)], [Counter(), Counter(fail_at=7)]],
+    ids=["env-moved-on-then-raised", "second-of-two-envs-raised"],
+)
+def test_learn_after_an_env_error_stores_no_transition_that_did_not_happen(envs):
+    """
+    An env raising inside step during learn leaves SB3's last observation behind the env (the failing env
+    had moved on, the envs before it in the VecEnv had stepped): going on paired it with the next one, a
+    row from t to t + 2. Every stored row is a step of one, or from a reset.
+    """
+    model = TRLSD(
+        "LinearPolicy", DummyVecEnv([lambda env=env: env for env in envs]), learning_starts=0, seed=0
+    )
+    with pytest.raises(RuntimeError, match="the simulator failed"):
+        model.learn(total_timesteps=40)
+    model.learn(total_timesteps=10, reset_num_timesteps=False)
+    rows = model.replay_buffer.transitions()
+    np.testing.assert_array_equal(rows.next_states - rows.states, 1.0)
+    assert len(rows) == 6 * len(envs) + 10  # six steps of each env before the error, ten after
