@@ -72,15 +72,17 @@ def save_file(
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     """
-    A temporary path beside ``path``, with the same suffix, for a writer that takes a path (matplotlib's
-    ``savefig``, say): once the block ends without an exception, the file written there is flushed to disk
-    and replaces ``path``; if the block raises, it is removed and ``path`` is left as it was.
+    A temporary path beside ``path`` for a writer that takes a path (matplotlib's ``savefig``, say): once
+    the block ends without an exception, the file written there is flushed to disk and replaces ``path``; if
+    the block raises, it is removed and ``path`` is left as it was. The temporary name is hidden and ends
+    with ``.tmp``, so that no reader takes a file being written for one of its own (a glob of ``*.npz``): a
+    writer that reads the format from the suffix must be given it (``format=``).
 
     :param path: the file to write
     :return: the temporary path to write to
     """
     target = Path(path)
-    temporary = target.with_name(f".{target.stem}.{secrets.token_hex(6)}.tmp{target.suffix}")
+    temporary = target.with_name(f".{target.name}.{secrets.token_hex(6)}.tmp")
     try:
         yield temporary
         _fsync_file(temporary)

@@ -70,7 +70,7 @@ def render_command(args: argparse.Namespace) -> int:
     from matplotlib.image import imsave
 
     with atomic_path(args.out) as temporary:
-        imsave(temporary, np.asarray(image))
+        imsave(temporary, np.asarray(image), format=Path(args.out).suffix.lower().lstrip("."))
     print(f"maze with a random trajectory of {args.steps} steps written to {os.path.abspath(args.out)}")
     return 0
 

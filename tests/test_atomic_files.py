@@ -36,12 +36,13 @@ def test_a_write_that_ends_replaces_the_file_with_the_permissions_open_gives(tmp
     assert sorted(os.listdir(tmp_path)) == ["existing.csv", "new.csv"]
 
 
-def test_a_path_writer_gets_a_path_of_the_same_suffix_beside_the_target(tmp_path):
-    """Writers that read the format from the suffix (savefig, imsave) must see the target's."""
+def test_a_path_writer_gets_a_hidden_temporary_path_beside_the_target(tmp_path):
+    """Beside it (a rename within one file system), and named so that no glob of results takes it for one."""
     path = tmp_path / "figure.png"
     with atomic_path(path) as temporary:
-        assert temporary.parent == tmp_path and temporary.suffix == ".png" and temporary != path
         temporary.write_bytes(b"png")
+        assert temporary.parent == tmp_path and temporary.name.startswith(".") and temporary.suffix == ".tmp"
+        assert not list(tmp_path.glob("*.png"))
     assert path.read_bytes() == b"png" and os.listdir(tmp_path) == ["figure.png"]
     with pytest.raises(RuntimeError), atomic_path(path) as temporary:
         temporary.write_bytes(b"half")

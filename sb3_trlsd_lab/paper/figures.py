@@ -77,7 +77,7 @@ def save_figure(figure: Any, path: Path, title: str) -> None:
     figure.suptitle(textwrap.fill(title, width=int(11 * figure.get_figwidth())))
     figure.tight_layout()
     with atomic_path(path) as temporary:
-        figure.savefig(temporary)
+        figure.savefig(temporary, format=Path(path).suffix.lstrip(".") or None)
 
 
 def draw_snapshot(ax: Any, snapshot: Snapshot, task: int, title: str) -> None:
