@@ -29,15 +29,15 @@ def save_target(path: str | os.PathLike, suffix: str, what: str = "path") -> Pat
     :param suffix: the suffix added to a path without one, with its dot
     :param what: the argument's name, for the error
     :return: the file
-    :raises ValueError: when the path, or the path with its suffix, is a folder (SB3 would save to
-        ``PATH_2`` beside it)
+    :raises ValueError: when the path ends with a separator, or the file it names (its suffix added) is a
+        folder (SB3 would save to ``PATH_2`` beside it)
     """
     given = Path(path)
     target = given if given.suffix else given.with_suffix(suffix)
     folder = None
-    if given.is_dir() or os.fspath(path).endswith(("/", os.sep)):
+    if os.fspath(path).endswith(("/", os.sep)):  # a folder meant, whatever is there
         folder = given
-    elif target.is_dir():
+    elif target.is_dir():  # a folder named "model" beside "model.zip" is no obstacle, as in SB3
         folder = target
     if folder is not None:
         raise ValueError(

@@ -330,20 +330,28 @@ def test_a_model_that_never_learnt_saves_and_loads(tmp_path):
     assert TRLSD.load(tmp_path / "fresh").replay_buffer.size() == 0
 
 
-@pytest.mark.parametrize("given", ["folder", "folder with a slash", "folder named model.zip"])
-def test_a_save_to_a_folder_is_refused_naming_it(tmp_path, given):
+@pytest.mark.parametrize(
+    ("folder", "given"),
+    [("runs", "runs/"), ("runs.v1", "runs.v1"), ("model.zip", "model")],
+    ids=["path-with-a-slash", "folder-with-a-suffix", "folder-named-as-the-zip"],
+)
+def test_a_save_to_a_folder_is_refused_naming_it(tmp_path, folder, given):
     """SB3 would save beside it, to PATH_2, with a warning a script does not see: refuse it, naming it."""
     model = TRLSD("LinearPolicy", gym.make(MAZE_ID), seed=0)
-    folder = tmp_path / ("model.zip" if given.endswith("model.zip") else "runs")
-    folder.mkdir()
-    path = str(folder) + ("/" if given.endswith("slash") else "")
-    if given.endswith("model.zip"):
-        path = str(tmp_path / "model")  # .zip is added: the path saved to is the folder
+    (tmp_path / folder).mkdir()
+    path = str(tmp_path / given) + ("/" if given.endswith("/") else "")
     with pytest.raises(ValueError, match="is a folder"):
         model.save(path)
     with pytest.raises(ValueError, match="is a folder"):
-        model.save_replay_buffer(folder)
-    assert sorted(os.listdir(tmp_path)) == [folder.name] and not os.listdir(folder)
+        model.save_replay_buffer(str(tmp_path / folder) + "/")
+    assert os.listdir(tmp_path) == [folder] and not os.listdir(tmp_path / folder)
+
+
+def test_a_folder_beside_the_zip_is_no_obstacle(tmp_path):
+    """As in SB3 (the RL Zoo keeps a folder of the env's name beside its zip): NAME gives NAME.zip."""
+    (tmp_path / "model").mkdir()
+    TRLSD("LinearPolicy", gym.make(MAZE_ID), seed=0).save(tmp_path / "model")
+    assert sorted(os.listdir(tmp_path)) == ["model", "model.zip"]
 
 
 def test_a_save_to_a_file_object_and_a_path_without_suffix_keep_sb3s_semantics(tmp_path):

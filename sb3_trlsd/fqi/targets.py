@@ -121,7 +121,7 @@ class FQIResult:
 
 def check_finite_fit(task: int, rewards: np.ndarray, gamma: float, result: FQIResult | None = None) -> None:
     """
-    Refuse a refit whose relabelled rewards are not finite or give returns, up to max |r| / (1 - gamma),
+    Refuse a refit whose relabelled rewards are not finite or give returns, up to ``max |r| / (1 - gamma)``,
     beyond float32's range (in which the features and networks compute), or whose fitted Q (``result``: its
     Bellman residual and linear parameters) is not finite: a NaN Q makes every action tie, and the greedy
     policy take action 0 at every state, silently. Optimism far beyond the reward scale (a huge ``kappa``) is
