@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from sb3_trlsd.atomic_files import atomic_write
 from sb3_trlsd_lab.benchmarks.mo_suite.families import FAMILIES, available
 from sb3_trlsd_lab.benchmarks.mo_suite.peers import SETTABLE
 from sb3_trlsd_lab.benchmarks.mo_suite.suite import family_scale, suite_run
@@ -139,9 +140,8 @@ def main() -> None:
         scaled = np.mean([by_family[name][0] / spreads[name] for name in args.families])
         print(f"{candidate:<28} {above:>10d} of {len(args.families)} {scaled:>26.3f}")
     args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "tuning.json").write_text(
-        json.dumps({"runs": args.runs, "candidates": CANDIDATES, "gains": gains}, indent=1)
-    )
+    with atomic_write(args.out / "tuning.json", "w") as file:
+        file.write(json.dumps({"runs": args.runs, "candidates": CANDIDATES, "gains": gains}, indent=1))
 
 
 if __name__ == "__main__":

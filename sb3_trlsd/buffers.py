@@ -10,6 +10,7 @@ read through a ``BufferCursor``, so that a refit costs only the new rows.
 from __future__ import annotations
 
 import secrets
+import warnings
 from dataclasses import dataclass
 from typing import Any
 
@@ -18,10 +19,10 @@ import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.buffers import ReplayBuffer
 
-from sb3_trlsd.data import Transitions
+from sb3_trlsd.data import Transitions, as_flags
 from sb3_trlsd.observations import split_observation, state_space_of, task_count_of
 
-__all__ = ["STORED_FIELDS", "BufferCursor", "SharedDynamicsReplayBuffer"]
+__all__ = ["STORED_FIELDS", "BufferCursor", "BufferFullWarning", "SharedDynamicsReplayBuffer"]
 
 # The per-row arrays of the buffer, in the column order of ``packed_rows``.
 STORED_FIELDS = (
@@ -34,6 +35,13 @@ STORED_FIELDS = (
     "tasks",
     "has_reward",
 )
+
+
+class BufferFullWarning(UserWarning):
+    """
+    The shared buffer is full and its ring starts replacing its oldest rows, which Fitted-Q then no longer
+    sees (source rows included). Warned once per buffer; a larger ``buffer_size`` keeps every row.
+    """
 
 
 @dataclass
@@ -89,6 +97,13 @@ class SharedDynamicsReplayBuffer(ReplayBuffer):
             raise ValueError(f"SharedDynamicsReplayBuffer needs a Discrete action space, got {action_space}")
         if not (isinstance(n_envs, (int, np.integer)) and n_envs >= 1):
             raise ValueError(f"n_envs must be an integer >= 1, got {n_envs!r}")
+        if isinstance(buffer_size, bool) or not (
+            isinstance(buffer_size, (int, np.integer)) and buffer_size >= 1
+        ):
+            # SB3 would make a buffer of 0 or less a buffer of one row, silently.
+            raise ValueError(
+                f"buffer_size must be an integer >= 1 (rows of the shared buffer), got {buffer_size!r}"
+            )
         # One column of rows: a step of n_envs envs is n_envs consecutive rows, so that transitions loaded
         # from elsewhere, and any number of envs, share one ring of buffer_size rows.
         super().__init__(
@@ -105,6 +120,7 @@ class SharedDynamicsReplayBuffer(ReplayBuffer):
         self.has_reward = np.zeros((self.buffer_size, self.n_envs), dtype=bool)
         self.n_added = 0  # rows ever added since the epoch began, in insertion order
         self.epoch = secrets.randbits(62)  # changes whenever rows are lost (wrap-around, reset)
+        self.warned_full = False
 
     def __setstate__(self, state: dict[str, Any]) -> None:
         # A buffer read back from disk is a new buffer for the cursors of the model that loads it.
@@ -136,7 +152,7 @@ class SharedDynamicsReplayBuffer(ReplayBuffer):
         actions = np.asarray(action).reshape(-1)
         rewards = np.asarray(reward, dtype=np.float64).reshape(-1)
         self._check_rows(states, next_states, actions, rewards, tasks, expected_rows=len(states))
-        dones = np.asarray(done).reshape(-1)
+        dones = as_flags("done", np.asarray(done).reshape(-1))
         if len(dones) != len(states) or len(infos) != len(states):
             raise ValueError(
                 f"expected one done and one info per env ({len(states)}), got {len(dones)}, {len(infos)}"
@@ -157,10 +173,13 @@ class SharedDynamicsReplayBuffer(ReplayBuffer):
 
     def add_transitions(self, transitions: Transitions, keep_rewards: bool = False) -> None:
         """
-        Append transitions collected elsewhere (e.g. by ``collect_transitions`` on other tasks).
+        Append transitions collected elsewhere (e.g. by ``collect_transitions`` on other tasks). Once the
+        ring is full they replace the oldest rows, as SB3's buffers do (see ``check_room``).
 
         :param transitions: the transitions to append
         :param keep_rewards: keep their rewards (``has_reward``); False (the paper's setting) stores 0
+        :raises ValueError: for more transitions than ``buffer_size`` (the first would be overwritten by the
+            last), or rows that do not fit the env
         """
         self._check_rows(
             transitions.states,
@@ -170,6 +189,12 @@ class SharedDynamicsReplayBuffer(ReplayBuffer):
             transitions.tasks,
             expected_rows=len(transitions),
         )
+        if len(transitions) > self.buffer_size:
+            raise ValueError(
+                f"{len(transitions)} transitions do not fit a shared buffer of "
+                f"buffer_size={self.buffer_size}: the first {len(transitions) - self.buffer_size} would be "
+                f"overwritten by the last; make the buffer with buffer_size >= {len(transitions)}"
+            )
         # Written in chunks that stop at the end of the ring.
         start = 0
         while start < len(transitions):
@@ -211,6 +236,7 @@ class SharedDynamicsReplayBuffer(ReplayBuffer):
             if not np.all(np.isfinite(value)):
                 bad = np.asarray(value)[~np.isfinite(value).all(axis=1)]
                 raise ValueError(f"a {name} is not finite (NaN or inf): {bad[:3]}")
+            self._check_integer_states(name, np.asarray(value))
         if np.shape(rewards) != (expected_rows,) or np.shape(actions) != (expected_rows,):
             raise ValueError(
                 f"expected {expected_rows} rewards and actions, got {np.shape(rewards)}, {np.shape(actions)}"
@@ -231,10 +257,54 @@ class SharedDynamicsReplayBuffer(ReplayBuffer):
                 f"tasks must be in 0..{self.n_tasks - 1} (the env's tasks), got {np.unique(tasks)}"
             )
 
+    def _check_integer_states(self, name: str, states: np.ndarray) -> None:
+        """On a Box of integers, states that the Box's dtype stores as they are, or a ValueError."""
+        dtype = np.dtype(self.observation_space.dtype)
+        if not np.issubdtype(dtype, np.integer):
+            return
+        fractional = states != np.round(states)
+        if fractional.any():
+            raise ValueError(
+                f"{name}s must be integers on this env's state Box of dtype {dtype}, which would store "
+                f"{float(states[fractional][0])} as {np.trunc(states[fractional][0]):.0f}: round the states "
+                "(np.rint) before they are stored, or give the env a float Box to keep them"
+            )
+        limits = np.iinfo(dtype)
+        if states.size and (states.min() < limits.min or states.max() > limits.max):
+            raise ValueError(
+                f"{name}s must fit the state Box's dtype {dtype} ({limits.min}..{limits.max}), got values "
+                f"from {states.min()} to {states.max()}: give the env a wider dtype"
+            )
+
+    def check_room(self, n_rows: int) -> None:
+        """
+        Refuse ``n_rows`` new rows that would replace stored ones (loaded transitions must not push out a
+        source set, nor be pushed out, silently).
+
+        :param n_rows: the rows about to be added
+        :raises ValueError: naming the sizes and the ``buffer_size`` that holds them all
+        """
+        if self.size() + n_rows > self.buffer_size:
+            raise ValueError(
+                f"{n_rows} transitions do not fit the shared buffer next to its {self.size()} rows: "
+                f"buffer_size={self.buffer_size} has room for {self.buffer_size - self.size()}, and the ring "
+                f"would drop the oldest rows; make the model with buffer_size >= {self.size() + n_rows} "
+                "(plus the online steps to come)"
+            )
+
     def _before_write(self, n_rows: int) -> None:
         if self.full:
             # Rows are about to be lost: every cursor must start over.
             self.epoch = secrets.randbits(62)
+            if not getattr(self, "warned_full", False):
+                self.warned_full = True
+                warnings.warn(
+                    f"the shared buffer is full (buffer_size={self.buffer_size}): from now on each new row "
+                    "replaces its oldest one, a source row included, and Fitted-Q no longer sees it; make "
+                    "the model with a larger buffer_size to keep every row. Warned once.",
+                    BufferFullWarning,
+                    stacklevel=3,
+                )
 
     # ----------------------------------------------------------------- reading
     def _flat(self, array: np.ndarray) -> np.ndarray:
@@ -305,10 +375,12 @@ class SharedDynamicsReplayBuffer(ReplayBuffer):
         :return: (n, 2 d + 6)
         """
         n = self.size()
+        if not n:  # reshape(0, -1) cannot tell the columns of no row
+            return np.zeros((0, 2 * self.obs_shape[0] + 6))
         columns = [
             self._flat(getattr(self, name)).reshape(n, -1).astype(np.float64) for name in STORED_FIELDS
         ]
-        return np.concatenate(columns, axis=1) if n else np.zeros((0, 2 * self.obs_shape[0] + 6))
+        return np.concatenate(columns, axis=1)
 
     def restore_packed_rows(self, rows: np.ndarray) -> None:
         """

@@ -16,6 +16,8 @@ from __future__ import annotations
 
 import copy
 import math
+import os
+import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -27,7 +29,13 @@ from sb3_trlsd.engine import TIE_BREAKS, Exploration
 from sb3_trlsd.feature_choice import FEATURE_MAPS, GRID_SHAPES, default_kernel_width, make_feature_map
 from sb3_trlsd.feature_maps import FeatureMap
 from sb3_trlsd.fqi import DEFAULT_TOL, STOP_RULES
-from sb3_trlsd.observations import state_space_of, task_count_of
+from sb3_trlsd.observations import (
+    MAX_BOX_SIDE,
+    WideStateBoxWarning,
+    state_space_of,
+    task_count_of,
+    wide_box_message,
+)
 from sb3_trlsd.reward_heads import (
     CONFIDENCE_BOUND_HEAD_NAMES,
     REWARD_HEAD_NAMES,
@@ -47,6 +55,7 @@ __all__ = [
     "STEP_HEAD_NAMES",
     "LearnerBuilder",
     "TRLSDConfig",
+    "check_algorithm_settings",
     "check_discount",
     "head_seed",
 ]
@@ -82,6 +91,16 @@ FEATURES_SIMILARITY_SIGMA = 0.2  # eq. 7 compares feature vectors, whose scale i
 # them moving by a few 1e-4.
 FQI_TOLS = {"theta": DEFAULT_TOL, "targets": 1e-3}
 
+# The widths of the Gaussians (sigma, rbf_sigma: fractions of the state box; rbf_overlap: spacings) that
+# tell states apart. Below MIN_WIDTH, two float32 states that differ at all, by one rounding step (~6e-8 of
+# the box), are over 38 widths apart, where exp(-x^2 / 2) underflows float64: every similarity between two
+# states and every feature away from its centre is 0. Above MAX_WIDTH, exp(-1 / (2 w^2)) rounds to 1 in
+# float64 across the whole box: every similarity and every feature is 1.
+MIN_WIDTH, MAX_WIDTH = 1e-9, 1e8
+DEGENERATE = (
+    "a narrower one makes every similarity or feature 0 between distinct states, a wider one 1 across the box"
+)
+
 Widths = float | Sequence[float] | None
 Counts = int | Sequence[int] | str | None
 Bounds = tuple[Sequence[float], Sequence[float]]
@@ -113,9 +132,9 @@ def _widths(name: str, value: Widths, meaning: str) -> None:
     array = np.asarray(value if value is not None else 1.0)
     ok = array.dtype.kind in "fiu" and array.ndim <= 1 and array.size and np.all(np.isfinite(array))
     _require(
-        bool(ok) and bool(np.all(array > 0)),
+        bool(ok) and bool(np.all(array >= MIN_WIDTH)) and bool(np.all(array <= MAX_WIDTH)),
         name,
-        f"None or a width > 0 (or one per dimension): {meaning}",
+        f"None or a width in [{MIN_WIDTH:g}, {MAX_WIDTH:g}] (or one per dimension), {meaning}: {DEGENERATE}",
         value,
     )
 
@@ -152,6 +171,41 @@ def check_discount(gamma: float) -> None:
     :raises ValueError: for NaN, infinite or out-of-range values
     """
     _require(0 < _finite("gamma", gamma) < 1, "gamma", "in (0, 1)", gamma)
+
+
+def check_algorithm_settings(
+    buffer_size: int,
+    learning_starts: int,
+    train_freq: int | tuple[int, str],
+    seed: int | None,
+    source_transitions: int | str | os.PathLike | None,
+) -> None:
+    """
+    Reject the settings ``TRLSD`` passes to SB3 that SB3 would take silently or fail on far from them,
+    naming each: a ``buffer_size`` of 0 or less (SB3 makes it one row) or NaN, a ``learning_starts`` that is
+    not a count (inf would never refit), a ``train_freq`` that is not a count of steps or episodes, a
+    ``seed`` numpy cannot take, and a number of ``source_transitions`` the buffer cannot hold.
+
+    :raises ValueError: naming the setting, its value and what it accepts
+    """
+    _integer("buffer_size", buffer_size, 1)
+    _integer("learning_starts", learning_starts, 0)
+    frequency, unit = (
+        train_freq if isinstance(train_freq, tuple) and len(train_freq) == 2 else (train_freq, "step")
+    )
+    ok = not isinstance(frequency, bool) and isinstance(frequency, (int, np.integer)) and frequency >= 1
+    if not (ok and unit in ("step", "episode")):
+        raise ValueError(
+            f"train_freq must be an integer >= 1 (steps) or (n, 'step') / (n, 'episode'), got {train_freq!r}"
+        )
+    seed_ok = isinstance(seed, (int, np.integer)) and not isinstance(seed, bool) and 0 <= seed < 2**32
+    _require(seed is None or seed_ok, "seed", "None or an integer in 0..2**32 - 1 (numpy's seeds)", seed)
+    if isinstance(source_transitions, (int, np.integer)) and source_transitions > buffer_size:
+        raise ValueError(
+            f"source_transitions={source_transitions} do not fit the shared buffer of "
+            f"buffer_size={buffer_size}: make the model with buffer_size >= {source_transitions} plus the "
+            "online steps to come"
+        )
 
 
 def head_seed(seed: int | None, task: int) -> int | None:
@@ -292,7 +346,10 @@ class TRLSDConfig:
         _integer("max_features", self.max_features, 1, none_allowed=True)
         if self.rbf_overlap is not None:
             _require(
-                _finite("rbf_overlap", self.rbf_overlap) > 0, "rbf_overlap", "a number > 0", self.rbf_overlap
+                MIN_WIDTH <= _finite("rbf_overlap", self.rbf_overlap) <= MAX_WIDTH,
+                "rbf_overlap",
+                f"a width in [{MIN_WIDTH:g}, {MAX_WIDTH:g}] spacings of the centres: {DEGENERATE}",
+                self.rbf_overlap,
             )
             if self.rbf_sigma is not None:
                 raise ValueError(
@@ -390,7 +447,8 @@ class TRLSDConfig:
     def state_box(self, observation_space: spaces.Space) -> tuple[np.ndarray, np.ndarray]:
         """
         The box [low, high] normalised coordinates are taken in: ``state_bounds`` if given, else the state
-        Box's bounds, which must then be finite.
+        Box's bounds, which must then be finite; a side of the Box wider than ``MAX_BOX_SIDE`` is warned of
+        (``WideStateBoxWarning``).
 
         :param observation_space: the env's observation space (a state Box, or a ``{"state", "task"}`` Dict)
         :return: low and high, (d,) float64
@@ -426,6 +484,9 @@ class TRLSDConfig:
                 "so that its observation space is finite (gymnasium.wrappers.TransformObservation with "
                 "np.clip and a bounded Box, then RescaleObservation if wanted)"
             )
+        wide = np.flatnonzero(high - low > MAX_BOX_SIDE)
+        if len(wide):
+            warnings.warn(wide_box_message(wide.tolist(), low, high), WideStateBoxWarning, stacklevel=2)
         return low, high
 
     def similarity_width(self, low: np.ndarray, high: np.ndarray) -> float | np.ndarray:

@@ -20,9 +20,10 @@ from gymnasium.wrappers import OrderEnforcing, PassiveEnvChecker, RecordEpisodeS
 from stable_baselines3.common.monitor import Monitor
 from tqdm.auto import tqdm
 
+from sb3_trlsd.atomic_files import atomic_write
 from sb3_trlsd.observations import split_observation, state_space_of
 
-__all__ = ["Transitions", "collect_transitions", "load_npz_arrays"]
+__all__ = ["Transitions", "as_flags", "collect_transitions", "load_npz_arrays"]
 
 # dtype kinds (numpy's ``dtype.kind``) a loaded file may hold, per field, and how to name them.
 LOADED_KINDS = {
@@ -34,6 +35,28 @@ LOADED_KINDS = {
     "truncations": ("b", "booleans"),
     "terminations": ("b", "booleans"),
 }
+
+
+def as_flags(name: str, values: object) -> np.ndarray:
+    """
+    Flags (a trajectory's truncation or termination) as booleans: booleans as they are, numbers only when
+    each is 0 or 1 (2 would be stored as a done of 2, 0.5 fail inside numpy's bitwise operations).
+
+    :param name: the argument's name, for the error
+    :param values: one flag or an array of them
+    :return: a boolean array of ``values``' shape
+    :raises ValueError: naming the argument and the values that are neither
+    """
+    array = np.asarray(values)
+    if array.dtype == bool:
+        return array
+    if array.dtype.kind in "iuf" and np.all((array == 0) | (array == 1)):
+        return array.astype(bool)
+    bad = np.unique(array[~((array == 0) | (array == 1))]) if array.dtype.kind in "iuf" else array.dtype
+    raise ValueError(
+        f"{name} must be booleans (True / False, or 0 / 1), got {bad}: pass whether each transition "
+        "ended its trajectory"
+    )
 
 
 @dataclass(frozen=True)
@@ -78,6 +101,8 @@ class Transitions:
         for name in ("actions", "rewards", "tasks", "truncations", "terminations"):
             if getattr(self, name).ndim != 1:
                 raise ValueError(f"Transitions.{name} must have shape (n,), got {getattr(self, name).shape}")
+        for name in ("truncations", "terminations"):
+            object.__setattr__(self, name, as_flags(f"Transitions.{name}", getattr(self, name)))
         if not np.issubdtype(self.actions.dtype, np.integer) or not np.issubdtype(
             self.tasks.dtype, np.integer
         ):
@@ -103,11 +128,18 @@ class Transitions:
 
     def save(self, path: str | os.PathLike) -> None:
         """
-        Save the transitions as an uncompressed ``.npz`` file (one array per field).
+        Save the transitions as an uncompressed ``.npz`` file (one array per field), written whole or not
+        at all: through a temporary file that replaces an earlier one only once complete.
 
-        :param path: destination file; numpy appends ``.npz`` if it is missing
+        :param path: destination file; ``.npz`` is appended if it is missing, as numpy does
+        :raises ValueError: when ``path`` is a folder
         """
-        np.savez(path, **{field.name: getattr(self, field.name) for field in fields(self)})
+        target = os.fspath(path)
+        target = target if target.endswith(".npz") else f"{target}.npz"
+        if os.path.isdir(target):
+            raise ValueError(f"path {target!r} is a folder, not a file to save the transitions to")
+        with atomic_write(target, "wb") as file:
+            np.savez(file, **{field.name: getattr(self, field.name) for field in fields(self)})
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> Transitions:

@@ -30,7 +30,7 @@ from threadpoolctl import ThreadpoolController
 
 from sb3_trlsd.buffers import SharedDynamicsReplayBuffer
 from sb3_trlsd.data import Transitions
-from sb3_trlsd.fqi import FQIResult, targets_rule_cap
+from sb3_trlsd.fqi import FQIResult, check_finite_fit, targets_rule_cap
 from sb3_trlsd.q_functions import QFunctions
 from sb3_trlsd.task_learner import TaskLearner
 
@@ -372,9 +372,13 @@ class Engine:
             self.runs[run].write_pending()
         buffers = [run.buffer for run in self.runs]
         rewards = [self.learner(run, task).relabelled_rewards(buffers[run]) for run, task in pairs]
+        for (_, task), task_rewards in zip(pairs, rewards, strict=True):
+            check_finite_fit(task, task_rewards, self.gamma)
         results = self.q_functions.fit(
             pairs, buffers, rewards, self.gamma, self.max_iterations, self.tol, self.stop_rule
         )
+        for (_, task), task_rewards, result in zip(pairs, rewards, results, strict=True):
+            check_finite_fit(task, task_rewards, self.gamma, result)
         for (run, task), result, task_rewards in zip(pairs, results, rewards, strict=True):
             learner = self.learner(run, task)
             learner.refitted(n_rows=self.runs[run].n_rows)

@@ -9,20 +9,25 @@ states found outside the box TRLSD's features and similarities are taken relativ
 from __future__ import annotations
 
 import warnings
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 from gymnasium import spaces
 
 __all__ = [
+    "MAX_BOX_SIDE",
     "StateBoxMonitor",
     "StateOutsideBoxWarning",
+    "WideStateBoxWarning",
     "check_action_space",
     "outside_box_message",
+    "read_observation",
     "split_observation",
     "state_space_of",
     "states_outside",
     "task_count_of",
+    "wide_box_message",
 ]
 
 
@@ -31,7 +36,8 @@ def state_space_of(observation_space: spaces.Space) -> spaces.Box:
     The Box holding the state: the observation space itself, or its ``"state"`` entry for the
     ``{"state", "task"}`` Dict observations of multi-task envs.
 
-    :raises ValueError: for any other observation space, or a ``"task"`` Discrete not starting at 0
+    :raises ValueError: for any other observation space, a ``"task"`` Discrete not starting at 0, or a
+        state Box that is not a vector of at least one number
     """
     if isinstance(observation_space, spaces.Dict) and isinstance(
         observation_space.spaces.get("state"), spaces.Box
@@ -71,6 +77,11 @@ def state_space_of(observation_space: spaces.Space) -> spaces.Box:
         raise ValueError(
             f"the state Box must be one-dimensional (a vector), got shape {state_space.shape}: flatten it "
             "(gymnasium.wrappers.FlattenObservation)"
+        )
+    if state_space.shape[0] == 0:
+        raise ValueError(
+            "the state Box must have at least one dimension, got shape (0,): TRLSD learns a task's reward "
+            "and Q as functions of the state; give the env a state of at least one number"
         )
     return state_space
 
@@ -146,6 +157,35 @@ def split_observation(
     return states, tasks.astype(np.int64)
 
 
+def read_observation(obs: Any, observation_space: spaces.Space) -> tuple[np.ndarray, np.ndarray]:
+    """
+    ``split_observation`` of an observation that TRLSD acts on, checked against the env's observation
+    space: a Dict space's observations must be ``{"state", "task"}`` dicts, their tasks in its ``"task"``
+    Discrete, and the states finite.
+
+    :param obs: an observation (d,) or a batch (n, d), or a ``{"state", "task"}`` Dict of them
+    :param observation_space: the env's observation space
+    :return: states (n, d) float64 and tasks (n,) int64
+    :raises ValueError: naming what does not fit the space, and what to pass instead
+    """
+    state_dim = state_space_of(observation_space).shape[0]
+    n_tasks = task_count_of(observation_space)
+    if isinstance(observation_space, spaces.Dict) and not isinstance(obs, dict):
+        raise ValueError(
+            f"the observation must be a {{'state': ..., 'task': ...}} dict, as the env's Dict observation "
+            f"space gives, got a {type(obs).__name__} of shape {np.shape(_as_array(obs))}: pass "
+            "{'state': states, 'task': tasks}"
+        )
+    states, tasks = split_observation(obs, state_dim, require_finite=True)
+    if np.any((tasks < 0) | (tasks >= n_tasks)):
+        raise ValueError(
+            f"the observation's tasks must be in 0..{n_tasks - 1} (the observation space's 'task' "
+            f"Discrete({n_tasks})), got {np.unique(tasks[(tasks < 0) | (tasks >= n_tasks)])}: an env (or a "
+            "caller) gives a task outside its observation space; make its 'task' Discrete hold every task"
+        )
+    return states, tasks
+
+
 class StateOutsideBoxWarning(UserWarning):
     """
     A state was found outside the box TRLSD's features and similarities are taken relative to (the state
@@ -197,6 +237,38 @@ def outside_box_message(outside: dict[int, float], low: np.ndarray, high: np.nda
         "relative to the box, the state Box's bounds or state_bounds: outside it they extrapolate. Give "
         "state_bounds=(low, high) with the range the states really take, or wrap the env so that its states "
         "stay in its Box (gymnasium.wrappers.TransformObservation with np.clip). Warned once."
+    )
+
+
+class WideStateBoxWarning(UserWarning):
+    """
+    The state Box is so wide (a side beyond ``MAX_BOX_SIDE``) that TRLSD's features and similarities, taken
+    relative to it, cannot tell states of ordinary scale apart. Give ``state_bounds``.
+    """
+
+
+# Beyond this side, in the env's units, a Box is most likely a stand-in for an unbounded dimension
+# (Gymnasium's envs use +-float32 max, 3.4e38): states within +-1e3 of each other span less than a thousandth
+# of it, where features and similarities of widths a few hundredths of the box (the defaults) differ by well
+# under 1%; at 3.4e38 they are equal to float64's precision, and so is Q at every state.
+MAX_BOX_SIDE = 1e6
+
+
+def wide_box_message(dimensions: Sequence[int], low: np.ndarray, high: np.ndarray) -> str:
+    """
+    The warning for a state Box whose side exceeds ``MAX_BOX_SIDE`` in ``dimensions``: the sides, and what
+    to give instead.
+
+    :param dimensions: the dimensions too wide
+    :param low: (d,) lower bounds of the box
+    :param high: (d,) upper bounds of the box
+    """
+    found = ", ".join(f"dimension {d}: [{low[d]:.3g}, {high[d]:.3g}]" for d in dimensions)
+    return (
+        f"the state Box is wider than {MAX_BOX_SIDE:.0e} in {found}: TRLSD takes its features and "
+        "similarities relative to the box, so states of ordinary scale all sit near its centre with the same "
+        "features, and Q is the same at every state; give state_bounds=(low, high) with the range the states "
+        "really take"
     )
 
 

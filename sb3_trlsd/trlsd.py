@@ -22,17 +22,18 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.noise import ActionNoise
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.policies import BasePolicy
-from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
+from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule, TrainFreq
 
+from sb3_trlsd.atomic_files import save_file
 from sb3_trlsd.buffers import SharedDynamicsReplayBuffer
 from sb3_trlsd.callbacks import TaskView, has_tensorboard, log_hyperparameters, log_task_picture
-from sb3_trlsd.config import LearnerBuilder, TRLSDConfig, check_discount
-from sb3_trlsd.data import Transitions
+from sb3_trlsd.config import LearnerBuilder, TRLSDConfig, check_algorithm_settings, check_discount
+from sb3_trlsd.data import Transitions, as_flags
 from sb3_trlsd.engine import Engine, Run, explore_rng, tie_rng
 from sb3_trlsd.feature_maps import FeatureMap
 from sb3_trlsd.fqi import FQIResult
-from sb3_trlsd.observations import StateBoxMonitor, check_action_space, split_observation, state_space_of
-from sb3_trlsd.persistence import BUFFER_ROWS, empty_rows, read_replay_buffer
+from sb3_trlsd.observations import StateBoxMonitor, check_action_space, read_observation, state_space_of
+from sb3_trlsd.persistence import BUFFER_ROWS, check_model_zip, empty_rows, read_replay_buffer
 from sb3_trlsd.policies import LinearPolicy, MlpPolicy, TaskQPolicy
 from sb3_trlsd.q_functions import PolicyQFunctions
 from sb3_trlsd.reward_heads import KnownRewardHead, RewardFn, RewardHead
@@ -292,6 +293,12 @@ class TRLSD(OffPolicyAlgorithm):
             reward_timing=reward_timing,
         )
         check_source_transitions(source_transitions)
+        check_algorithm_settings(buffer_size, learning_starts, train_freq, seed, source_transitions)
+        if env is None and _init_setup_model:
+            raise ValueError(
+                "env must be an env, a VecEnv or a registered env id to build the model, got None (None is "
+                "for TRLSD.load, which makes the model with _init_setup_model=False)"
+            )
         if isinstance(log_picture_every, bool) or not (
             isinstance(log_picture_every, (int, np.integer)) and log_picture_every >= 0
         ):
@@ -442,8 +449,10 @@ class TRLSD(OffPolicyAlgorithm):
         :param data: transitions (see ``collect_transitions``) or the path of a ``.npz`` saved from them
         :param keep_rewards: also fit each task's reward head on the rewards of its transitions; False
             (the paper's setting) uses them for the dynamics only
+        :raises ValueError: when they do not fit in the buffer next to its rows (``buffer_size``)
         """
         transitions = data if isinstance(data, Transitions) else Transitions.load(data)
+        self.replay_buffer.check_room(len(transitions))
         self._state_box.check(np.concatenate([transitions.states, transitions.next_states]), stacklevel=2)
         self.replay_buffer.add_transitions(transitions, keep_rewards=keep_rewards)
         if keep_rewards:
@@ -466,8 +475,7 @@ class TRLSD(OffPolicyAlgorithm):
         # its first step (unless ``first_fit`` waits), the greedy action, and the task's exploration.
         if self.num_timesteps < learning_starts or self._last_obs is None:
             return super()._sample_action(learning_starts, action_noise, n_envs)
-        obs, state_dim = self._last_obs, self.replay_buffer.obs_shape[0]
-        states, tasks = split_observation(obs, state_dim, require_finite=True)
+        states, tasks = read_observation(self._last_obs, self.observation_space)
         self._state_box.check(states, stacklevel=4)
         actions = self.engine.act(np.zeros(len(tasks), dtype=np.int64), states, tasks)
         return actions, actions
@@ -515,7 +523,7 @@ class TRLSD(OffPolicyAlgorithm):
         :param obs: one observation of the env (not batched)
         :return: the action
         """
-        states, tasks = split_observation(obs, self.replay_buffer.obs_shape[0], require_finite=True)
+        states, tasks = read_observation(obs, self.observation_space)
         self._state_box.check(states, stacklevel=2)
         return int(self.engine.act(np.zeros(1, dtype=np.int64), states[:1], tasks[:1])[0])
 
@@ -541,6 +549,10 @@ class TRLSD(OffPolicyAlgorithm):
         :param terminated: the step reached an absorbing state
         :param truncated: the trajectory was cut (no absorbing state: FQI bootstraps through it)
         """
+        terminated, truncated = (
+            bool(as_flags("terminated", terminated)),
+            bool(as_flags("truncated", truncated)),
+        )
         self.replay_buffer.add(
             obs,
             next_obs,
@@ -618,12 +630,29 @@ class TRLSD(OffPolicyAlgorithm):
         exclude: Iterable[str] | None = None,
         include: Iterable[str] | None = None,
     ) -> None:
-        """SB3's ``save``, with the shared buffer's rows in the zip (so that ``load`` can go on learning)."""
+        """
+        SB3's ``save``, with the shared buffer's rows in the zip (so that ``load`` can go on learning), and
+        written whole or not at all: to a path (``.zip`` added when it has no suffix), through a temporary
+        file that replaces the earlier one only once complete, so that a failed save leaves it loadable.
+
+        :raises ValueError: when ``path`` is a folder
+        """
         self._buffer_rows = th.as_tensor(self.replay_buffer.packed_rows())
         try:
-            super().save(path, exclude=exclude, include=include)
+            with save_file(path, ".zip") as file:
+                super().save(file, exclude=exclude, include=include)
         finally:
             self._buffer_rows = empty_rows()
+
+    def save_replay_buffer(self, path: str | pathlib.Path | io.BufferedIOBase) -> None:
+        """
+        SB3's ``save_replay_buffer``, written whole or not at all (see ``save``; ``.pkl`` added to a path
+        without a suffix).
+
+        :raises ValueError: when ``path`` is a folder
+        """
+        with save_file(path, ".pkl") as file:
+            super().save_replay_buffer(file)
 
     @classmethod
     def load(  # type: ignore[override]
@@ -636,7 +665,13 @@ class TRLSD(OffPolicyAlgorithm):
         force_reset: bool = True,
         **kwargs: Any,
     ) -> SelfTRLSD:
-        """SB3's ``load``; the shared buffer comes back with its rows, the known heads with reward_fn."""
+        """
+        SB3's ``load``; the shared buffer comes back with its rows, the known heads with reward_fn.
+
+        :raises ValueError: naming the file, when it is not a whole zip of ``TRLSD.save`` (cut short,
+            damaged, or lacking one of ``MODEL_ENTRIES``)
+        """
+        check_model_zip(path)
         model = super().load(path, env, device, custom_objects, print_system_info, force_reset, **kwargs)
         rows = model._buffer_rows
         if len(rows):
@@ -725,15 +760,37 @@ class TRLSD(OffPolicyAlgorithm):
         reset_num_timesteps: bool = True,
         progress_bar: bool = False,
     ) -> SelfTRLSD:
+        """
+        SB3's ``learn``, the source set loaded first (``source_transitions``). A learn that raises (an env
+        failing inside ``step``, say) leaves the next one to start from a reset of the env: the step it broke
+        off may have moved the env on, and SB3's last observation paired with the next one would store a
+        transition that never happened.
+
+        :raises ValueError: when ``train_freq`` is more than ``total_timesteps``: SB3 collects a whole
+            ``train_freq`` (of steps, or of episodes of at least one step) before it looks at
+            ``total_timesteps``, so learn would run on past it
+        """
+        assert isinstance(self.train_freq, TrainFreq)  # made one by _setup_model
+        frequency, unit = self.train_freq.frequency, self.train_freq.unit.value
+        if frequency > total_timesteps:
+            raise ValueError(
+                f"train_freq={frequency} {unit}s is more than total_timesteps={total_timesteps}: SB3 "
+                "collects a whole train_freq before it stops, so learn would run on past total_timesteps; "
+                f"make the model with train_freq <= {total_timesteps}"
+            )
         self._load_source_once()
-        super().learn(
-            total_timesteps=total_timesteps,
-            callback=callback,
-            log_interval=log_interval,
-            tb_log_name=tb_log_name,
-            reset_num_timesteps=reset_num_timesteps,
-            progress_bar=progress_bar,
-        )
+        try:
+            super().learn(
+                total_timesteps=total_timesteps,
+                callback=callback,
+                log_interval=log_interval,
+                tb_log_name=tb_log_name,
+                reset_num_timesteps=reset_num_timesteps,
+                progress_bar=progress_bar,
+            )
+        except BaseException:
+            self._last_obs = None  # SB3's _setup_learn resets the env on None
+            raise
         # SB3 dumps the logs every log_interval episodes: a run's last values are kept too.
         self.dump_logs()
         return self
@@ -750,7 +807,7 @@ class TRLSD(OffPolicyAlgorithm):
         ``tie_break`` unless ``deterministic`` (then the first). A task whose Q-function was never fitted is
         warned about, once per task.
         """
-        states, tasks = split_observation(observation, self.replay_buffer.obs_shape[0], require_finite=True)
+        states, tasks = read_observation(observation, self.observation_space)
         self._state_box.check(states, stacklevel=2)
         for task in np.unique(tasks):
             learner = self.task_learners.get(int(task))
@@ -766,12 +823,13 @@ class TRLSD(OffPolicyAlgorithm):
 
 def _policy_class(policy: str | type[TaskQPolicy], aliases: dict[str, type[BasePolicy]]) -> type[BasePolicy]:
     """
-    The policy class of ``policy``: a class as it is, or the class of a name among ``aliases``.
+    The policy class of ``policy``: a ``TaskQPolicy`` subclass as it is, or the class of a name among
+    ``aliases``.
 
-    :raises ValueError: for an unknown name
+    :raises ValueError: for an unknown name, or anything else (another class, a number)
     """
-    if not isinstance(policy, str):
+    if isinstance(policy, type) and issubclass(policy, TaskQPolicy):
         return policy
-    if policy not in aliases:
-        raise ValueError(f"policy must be one of {sorted(aliases)} or a policy class, got {policy!r}")
+    if not isinstance(policy, str) or policy not in aliases:
+        raise ValueError(f"policy must be one of {sorted(aliases)} or a TaskQPolicy subclass, got {policy!r}")
     return aliases[policy]

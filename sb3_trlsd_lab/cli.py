@@ -25,6 +25,7 @@ import gymnasium as gym
 import numpy as np
 
 import sb3_trlsd_envs
+from sb3_trlsd.atomic_files import atomic_path, atomic_write
 from sb3_trlsd_lab.benchmarks.benchmark import FAMILIES
 from sb3_trlsd_lab.cli_parser import IMAGE_EXTENSIONS, build_parser
 from sb3_trlsd_lab.registry import FIGURES, STUDIES, STUDY_OPTIONS
@@ -69,7 +70,8 @@ def render_command(args: argparse.Namespace) -> int:
     env.close()
     from matplotlib.image import imsave
 
-    imsave(args.out, np.asarray(image))
+    with atomic_path(args.out) as temporary:
+        imsave(temporary, np.asarray(image), format=Path(args.out).suffix.lower().lstrip("."))
     print(f"maze with a random trajectory of {args.steps} steps written to {os.path.abspath(args.out)}")
     return 0
 
@@ -303,7 +305,8 @@ def suite_command(args: argparse.Namespace) -> int:
     datas = [json.loads(path.read_text()) for path in written if path.exists()]
     if done and datas:
         table = f"{suite_table(datas)}\n\n{goal_table(datas)}"
-        (out / "mo_suite_table.md").write_text(table + "\n")
+        with atomic_write(out / "mo_suite_table.md", "w") as file:
+            file.write(table + "\n")
         print(table)
     return status
 
@@ -331,7 +334,8 @@ def claims_command(args: argparse.Namespace) -> int:
         table = claims_table(columns)
     print(table)
     if args.out:
-        Path(args.out).write_text(table + "\n")
+        with atomic_write(args.out, "w") as file:
+            file.write(table + "\n")
     return 0
 
 

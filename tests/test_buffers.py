@@ -1,6 +1,8 @@
 """SharedDynamicsReplayBuffer: storage by task, source loading, relabelling for a target task."""
 
 import pickle
+import warnings
+from dataclasses import replace
 
 import gymnasium as gym
 import numpy as np
@@ -8,7 +10,7 @@ import pytest
 from gymnasium import spaces
 
 from sb3_trlsd import SharedDynamicsReplayBuffer
-from sb3_trlsd.buffers import STORED_FIELDS, BufferCursor
+from sb3_trlsd.buffers import STORED_FIELDS, BufferCursor, BufferFullWarning
 from sb3_trlsd.observations import state_space_of
 from tests.conftest import MAZE_ID
 
@@ -77,9 +79,11 @@ def test_a_cursor_reads_each_new_row_once_and_starts_over_when_rows_are_lost(
     assert restart and len(rows) == buffer.size()
     rows, restart = buffer.read_new(cursor)
     assert not restart and len(rows) == 0
-    add_online(buffer, np.random.default_rng(1), task=0, n=600)
-    rows, restart = buffer.read_new(cursor)
     wrapped = len(source_transitions) + 600 > buffer_size
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", BufferFullWarning)  # wrapping is what this test is about
+        add_online(buffer, np.random.default_rng(1), task=0, n=600)
+    rows, restart = buffer.read_new(cursor)
     assert restart == wrapped
     expected = buffer.transitions() if wrapped else buffer.transitions(start=len(source_transitions))
     np.testing.assert_array_equal(rows.states, expected.states)
@@ -124,6 +128,8 @@ def test_packed_rows_restore_the_buffer_exactly(maze_spaces, source_transitions)
         ({"task": -1}, "tasks"),
         ({"state": [1.0, 2.0, 3.0]}, "shape"),
         ({"action": 4}, "actions"),
+        ({"done": 0.5}, "done must be booleans"),
+        ({"done": 2}, "done must be booleans"),
     ],
     ids=[
         "nan-reward",
@@ -134,6 +140,8 @@ def test_packed_rows_restore_the_buffer_exactly(maze_spaces, source_transitions)
         "task-minus-1",
         "3-d",
         "action-4",
+        "half-done",
+        "done-of-2",
     ],
 )
 def test_a_bad_online_transition_is_refused_before_anything_is_stored(maze_spaces, change, message):
@@ -141,7 +149,15 @@ def test_a_bad_online_transition_is_refused_before_anything_is_stored(maze_space
     buffer = make_buffer(maze_spaces)
     add_online(buffer, np.random.default_rng(3), task=1, n=3)
     before = buffer.packed_rows()
-    values = {"state": [1.0, 1.0], "next_state": [1.5, 1.0], "reward": 0.0, "task": 1, "action": 2, **change}
+    values = {
+        "state": [1.0, 1.0],
+        "next_state": [1.5, 1.0],
+        "reward": 0.0,
+        "task": 1,
+        "action": 2,
+        "done": False,
+    }
+    values |= change
     obs = {"state": np.array([values["state"]], dtype=np.float32), "task": np.array([values["task"]])}
     next_obs = {
         "state": np.array([values["next_state"]], dtype=np.float32),
@@ -153,7 +169,7 @@ def test_a_bad_online_transition_is_refused_before_anything_is_stored(maze_space
             next_obs,
             np.array([[values["action"]]]),
             np.array([values["reward"]]),
-            np.array([False]),
+            np.array([values["done"]]),
             [{}],
         )
     np.testing.assert_array_equal(buffer.packed_rows(), before)
@@ -193,3 +209,66 @@ def test_state_space_must_be_a_box_or_a_state_task_dict():
         state_space_of(spaces.Discrete(3))
     with pytest.raises(ValueError, match="observation_space"):
         state_space_of(spaces.Dict({"position": spaces.Box(0, 1, (2,))}))
+
+
+@pytest.mark.parametrize(
+    "size", [0, -3, np.nan, 2.5, True], ids=["zero", "negative", "nan", "fraction", "bool"]
+)
+def test_a_buffer_size_that_is_not_a_count_of_rows_is_refused(maze_spaces, size):
+    """SB3 makes a buffer of 0 or fewer rows a buffer of one row, silently, and fails on NaN in numpy."""
+    with pytest.raises(ValueError, match="buffer_size must be an integer >= 1"):
+        make_buffer(maze_spaces, size=size)
+
+
+def test_more_transitions_than_the_buffer_holds_are_refused_not_cut(maze_spaces, source_transitions):
+    """The ring kept the last buffer_size rows of the batch and dropped the first ones, with no word."""
+    buffer = make_buffer(maze_spaces, size=len(source_transitions) - 1)
+    with pytest.raises(ValueError, match=f"buffer_size >= {len(source_transitions)}"):
+        buffer.add_transitions(source_transitions)
+    assert buffer.size() == 0
+
+
+def test_the_ring_warns_once_when_it_starts_replacing_rows(maze_spaces, source_transitions):
+    """
+    Online rows wrapping the ring replace the oldest, source rows first, as SB3's buffers do: Fitted-Q then
+    no longer sees them, which must not happen silently. Warned once, naming buffer_size.
+    """
+    buffer = make_buffer(maze_spaces, size=len(source_transitions) + 5)
+    buffer.add_transitions(source_transitions)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        add_online(buffer, np.random.default_rng(0), task=0, n=5)  # fills the buffer, replaces nothing
+    with pytest.warns(BufferFullWarning, match=f"buffer_size={len(source_transitions) + 5}"):
+        add_online(buffer, np.random.default_rng(1), task=0, n=1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        add_online(buffer, np.random.default_rng(2), task=0, n=20)
+    assert buffer.size() == buffer.buffer_size
+
+
+def test_check_room_refuses_rows_that_would_push_out_stored_ones(maze_spaces, source_transitions):
+    """Loaded transitions must fit beside the rows stored: the error names the buffer_size holding both."""
+    buffer = make_buffer(maze_spaces, size=len(source_transitions) + 10)
+    buffer.add_transitions(source_transitions)
+    buffer.check_room(10)
+    with pytest.raises(ValueError, match=f"buffer_size >= {len(source_transitions) + 11}"):
+        buffer.check_room(11)
+
+
+@pytest.mark.parametrize("dtype", [np.int64, np.uint8], ids=["int64", "uint8"])
+def test_float_states_on_a_box_of_integers_are_refused_not_truncated(source_transitions, dtype):
+    """An integer Box stored 1.7 as 1 (numpy's cast), silently: refused, naming the dtype and the fix."""
+    buffer = SharedDynamicsReplayBuffer(100, spaces.Box(0, 5, (2,), dtype), spaces.Discrete(4), device="cpu")
+    floats = replace(source_transitions.take(np.arange(10)), tasks=np.zeros(10, dtype=np.int64))
+    with pytest.raises(
+        ValueError, match=f"must be integers on this env's state Box of dtype {np.dtype(dtype)}"
+    ):
+        buffer.add_transitions(floats)
+    assert buffer.size() == 0
+    rounded = replace(floats, states=np.rint(floats.states), next_states=np.rint(floats.next_states))
+    buffer.add_transitions(rounded)
+    np.testing.assert_array_equal(buffer.transitions().states, rounded.states)
+    out_of_dtype = replace(rounded, states=np.full_like(rounded.states, 300.0))
+    if dtype is np.uint8:  # 300 would wrap round to 44
+        with pytest.raises(ValueError, match="must fit the state Box's dtype uint8"):
+            buffer.add_transitions(out_of_dtype)

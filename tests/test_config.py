@@ -1,5 +1,7 @@
 """TRLSD off the maze: scale-free defaults, unbounded boxes, heads without the maze, source data as given."""
 
+import warnings
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -8,6 +10,7 @@ from gymnasium import spaces
 from sb3_trlsd import TRLSD, RelabellingReplayBuffer, Transitions, collect_transitions
 from sb3_trlsd.config import TRLSDConfig
 from sb3_trlsd.feature_maps import AdditiveRBF, RandomFourierFeatures, RBFGrid
+from sb3_trlsd.observations import WideStateBoxWarning
 from sb3_trlsd.reward_heads import GridCells, KnownRewardHead, TabularRewardHead
 from tests.conftest import MAZE_ID
 
@@ -118,6 +121,76 @@ def test_an_unbounded_state_box_is_refused_with_the_way_to_bound_it():
     )
     mlp.learn(total_timesteps=20)
     assert mlp.policy_updates[0] >= 1
+
+
+class Stepper(gym.Env):
+    """States s_t = t (up to 50) on a Box of ``low``..``high``, two actions that do nothing, reward s / 50."""
+
+    action_space = spaces.Discrete(2)
+
+    def __init__(self, low, high):
+        self.observation_space = spaces.Box(low, high, (1,), np.float32)
+        self.t = 0
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        self.t = 0
+        return np.zeros(1, np.float32), {}
+
+    def step(self, action):
+        self.t += 1
+        return np.full(1, self.t, np.float32), self.t / 50, False, self.t >= 50, {}
+
+
+def test_a_box_too_wide_to_tell_states_apart_is_warned_of_naming_state_bounds():
+    """
+    A Box of +-float32 max (a stand-in for an unbounded side) puts every state of ordinary scale at its
+    centre: the features, and so Q, are the same at every state. Warned, naming the dimension and
+    state_bounds; with state_bounds given, no warning and a Q that differs across states.
+    """
+    huge = float(np.finfo(np.float32).max)
+    with pytest.warns(WideStateBoxWarning, match=r"dimension 0: \[-3.4e\+38, 3.4e\+38\].*state_bounds"):
+        wide = TRLSD("LinearPolicy", Stepper(-huge, huge), reward_head="ridge", seed=0)
+    wide.learn(total_timesteps=60)
+    states = np.arange(0, 50, 7, dtype=np.float64)[:, None]
+    assert np.ptp(wide.policy.q_values(states, 0), axis=0).max() == 0  # each action's Q: what is warned of
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", WideStateBoxWarning)
+        bounded = TRLSD(
+            "LinearPolicy", Stepper(-huge, huge), reward_head="ridge", state_bounds=([0], [50]), seed=0
+        )
+        TRLSD("LinearPolicy", Stepper(0, 1e6), seed=0)  # as wide as the rule allows
+    bounded.learn(total_timesteps=60)
+    assert np.ptp(bounded.policy.q_values(states, 0), axis=0).min() > 0
+
+
+@pytest.mark.parametrize(
+    ("setting", "value"),
+    [
+        ("sigma", 1e-300),
+        ("sigma", 1e300),
+        ("sigma", [0.04, 1e9]),
+        ("rbf_sigma", 1e300),
+        ("rbf_sigma", 1e-12),
+        ("rbf_overlap", 1e300),
+    ],
+    ids=[
+        "sigma-tiny",
+        "sigma-huge",
+        "sigma-huge-in-one-dimension",
+        "rbf-sigma-huge",
+        "rbf-sigma-tiny",
+        "overlap-huge",
+    ],
+)
+def test_a_width_that_makes_every_similarity_or_feature_0_or_1_is_refused(setting, value):
+    """
+    sigma = 1e-300 made every similarity of eq. 6 0 between two distinct states (NaN at a state with itself:
+    2 sigma^2 underflows), rbf_sigma = 1e300 every feature 1 at every state: refused, naming the setting and
+    the widths that tell states apart.
+    """
+    with pytest.raises(ValueError, match=rf"{setting} must be .*a width in \[1e-09, 1e\+08\]"):
+        TRLSDConfig(reward_head="ridge", **{setting: value})
 
 
 def test_the_default_features_follow_the_box_and_the_dimension():

@@ -1,6 +1,8 @@
 """collect_transitions and the .npz round trip of Transitions."""
 
 import dataclasses
+import errno
+import os
 import pickle
 import re
 
@@ -41,9 +43,45 @@ def test_npz_round_trip(tmp_path, source_transitions):
     """Saving then loading gives back every array unchanged."""
     path = tmp_path / "source.npz"
     source_transitions.save(path)
-    loaded = Transitions.load(path)
+    assert_same_transitions(Transitions.load(path), source_transitions)
+
+
+def assert_same_transitions(ours: Transitions, theirs: Transitions) -> None:
     for field in dataclasses.fields(Transitions):
-        np.testing.assert_array_equal(getattr(loaded, field.name), getattr(source_transitions, field.name))
+        np.testing.assert_array_equal(getattr(ours, field.name), getattr(theirs, field.name))
+
+
+def test_a_save_that_fails_midway_leaves_the_earlier_file_loadable(tmp_path, monkeypatch, source_transitions):
+    """
+    A save that fails as a full disk does, midway through the arrays, leaves the earlier file whole (written
+    in place, it is cut short and unreadable), and no partial file beside it.
+    """
+    path = tmp_path / "source.npz"
+    source_transitions.save(path)
+    write_array, calls = np.lib.format.write_array, []
+
+    def failing(file, array, *args, **kwargs):
+        calls.append(1)
+        if len(calls) == 3:
+            file.write(b"\x00" * 64)
+            raise OSError(errno.ENOSPC, "No space left on device")
+        write_array(file, array, *args, **kwargs)
+
+    monkeypatch.setattr(np.lib.format, "write_array", failing)
+    with pytest.raises(OSError, match="No space left"):
+        source_transitions.take(np.arange(10)).save(path)
+    monkeypatch.undo()
+    assert_same_transitions(Transitions.load(path), source_transitions)
+    assert os.listdir(tmp_path) == ["source.npz"]
+
+
+def test_a_save_names_the_file_as_numpy_does_and_refuses_a_folder(tmp_path, source_transitions):
+    """``.npz`` is added when missing; a folder's name is refused instead of failing inside numpy."""
+    source_transitions.save(tmp_path / "source")
+    assert os.listdir(tmp_path) == ["source.npz"]
+    (tmp_path / "folder.npz").mkdir()
+    with pytest.raises(ValueError, match="is a folder"):
+        source_transitions.save(tmp_path / "folder")
 
 
 def test_loading_a_file_that_is_not_transitions_fails_clearly(tmp_path, source_transitions):
@@ -146,3 +184,29 @@ def test_envs_without_a_sampler_are_stepped_one_transition_at_a_time():
     assert data.terminations.any() and np.all(data.tasks == 0)
     ended = data.terminations[:-1] | data.truncations[:-1]
     np.testing.assert_array_equal(data.next_states[:-1][~ended], data.states[1:][~ended])
+
+
+@pytest.mark.parametrize(
+    ("name", "flags", "message"),
+    [
+        ("truncations", np.full(3, 0.5), r"truncations must be booleans .* got \[0.5\]"),
+        ("truncations", np.full(3, 2), r"truncations must be booleans .* got \[2\]"),
+        ("terminations", np.array([0, 1, 3]), r"terminations must be booleans .* got \[3\]"),
+    ],
+    ids=["half-truncation", "truncation-of-2", "termination-of-3"],
+)
+def test_flags_that_are_not_booleans_are_refused_by_name(name, flags, message):
+    """0.5 failed inside numpy's bitwise_or when stored; 2 was stored as a done of 2, silently."""
+    arrays = {"states": np.zeros((3, 2)), "actions": np.zeros(3, int), "next_states": np.zeros((3, 2))}
+    arrays |= {"rewards": np.zeros(3), "tasks": np.zeros(3, int)}
+    arrays |= {"truncations": np.zeros(3, bool), "terminations": np.zeros(3, bool), name: flags}
+    with pytest.raises(ValueError, match=message):
+        Transitions(**arrays)
+
+
+def test_flags_of_0_and_1_are_taken_as_booleans():
+    """Integer flags of 0 and 1 (a CSV's, say) are what they mean: stored as booleans."""
+    transitions = Transitions(
+        np.zeros((2, 2)), np.zeros(2, int), np.zeros((2, 2)), np.zeros(2), np.zeros(2, int), [0, 1], [1, 0]
+    )
+    assert transitions.truncations.dtype == bool and transitions.truncations.tolist() == [False, True]

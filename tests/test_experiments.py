@@ -4,7 +4,9 @@ runs: ``test_run_cache.py``; interrupts and paths: ``test_cli.py``).
 """
 
 import csv
+import errno
 import json
+import os
 
 import gymnasium as gym
 import numpy as np
@@ -13,15 +15,19 @@ from matplotlib.image import imread
 
 from sb3_trlsd import collect_transitions
 from sb3_trlsd_envs import MAZE_ID, expected_reward
+from sb3_trlsd_lab.benchmarks.mo_suite.suite import write_rows
 from sb3_trlsd_lab.cli import main
 from sb3_trlsd_lab.execution import batches, runner
 from sb3_trlsd_lab.execution.runner import Method, multitask_run, transfer_run
 from sb3_trlsd_lab.paper import multitask
+from sb3_trlsd_lab.paper.figures import new_figure, save_figure
 from sb3_trlsd_lab.paper.reporting import (
     mean_and_standard_error,
     moving_average,
     results_table,
     window_means,
+    write_curves_csv,
+    write_json,
 )
 from sb3_trlsd_lab.registry import FIGURES
 
@@ -167,3 +173,73 @@ def test_results_table_has_a_row_per_method_with_standard_errors():
     lines = results_table(data).splitlines()
     assert lines[0] == "| method | reward [0, 10) | runs |"
     assert lines[2:] == ["| a | 0.500 ± 0.010 | 3 |", "| b | 0.250 ± 0.020 | 3 |"]
+
+
+class Unwritable(dict):
+    """A value the writers fail on once they have written part of the file (as a full disk fails them)."""
+
+    def __array__(self, *args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    def __getitem__(self, key):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    def items(self):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+
+def failing_figure(path):
+    """A figure whose drawing writes part of the PNG and then fails as a full disk does."""
+    figure, _ = new_figure(1)
+
+    def savefig(target, *args, **kwargs):
+        with open(target, "wb") as file:
+            file.write(b"\x89PNG partial")
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    figure.savefig = savefig
+    save_figure(figure, path, "a figure")
+
+
+def good_figure(path):
+    figure, _ = new_figure(1)
+    save_figure(figure, path, "a figure")
+
+
+ROWS = {
+    "trlsd": [dict.fromkeys(["run", "task", "seed", "score", "seconds", "online_ms_per_step", "updates"], 1)]
+}
+WRITERS = {
+    "json": (
+        "fig5.json",
+        lambda path: write_json(path, {"runs": 3}),
+        lambda path: write_json(path, {"runs": 4, "rewards": Unwritable(mean=1.0)}),
+    ),
+    "curves-csv": (
+        "fig5.csv",
+        lambda path: write_curves_csv(path, "transition", {"a": np.ones((2, 3))}),
+        lambda path: write_curves_csv(path, "transition", {"a": np.zeros((2, 3)), "b": Unwritable()}),
+    ),
+    "figure-png": ("fig5.png", good_figure, failing_figure),
+    "suite-rows-csv": (
+        "mo_suite.csv",
+        lambda path: write_rows(path, ROWS),
+        lambda path: write_rows(path, {"random": ROWS["trlsd"], "dqn": [Unwritable()]}),
+    ),
+}
+
+
+@pytest.mark.parametrize("writer", list(WRITERS), ids=list(WRITERS))
+def test_a_result_file_that_fails_midway_leaves_the_earlier_one_whole(tmp_path, writer):
+    """
+    The lab's JSON, CSV and PNG writers write whole files or none: a write that fails partway (a full disk)
+    leaves the results of the earlier run as they were, where writing in place had cut them short.
+    """
+    name, write, fail = WRITERS[writer]
+    path = tmp_path / name
+    write(path)
+    earlier = path.read_bytes()
+    with pytest.raises(OSError, match="No space left"):
+        fail(path)
+    assert path.read_bytes() == earlier
+    assert os.listdir(tmp_path) == [name]

@@ -18,6 +18,7 @@ from sb3_trlsd.observations import (
     StateOutsideBoxWarning,
     check_action_space,
     outside_box_message,
+    read_observation,
     split_observation,
     state_space_of,
     states_outside,
@@ -224,3 +225,29 @@ def test_trlsd_refuses_an_env_whose_tasks_start_at_1_when_it_is_made():
     shifted = gym.wrappers.TransformObservation(env, lambda obs: {**obs, "task": obs["task"] + 1}, space)
     with pytest.raises(ValueError, match=r"tasks from 0, got Discrete\(25, start=1\).*subtracting 1"):
         TRLSD("LinearPolicy", shifted)
+
+
+def test_a_state_box_of_no_dimension_is_refused_by_name():
+    """A Box of shape (0,) failed with numpy's 'argmax of an empty sequence' inside the feature map."""
+    with pytest.raises(ValueError, match=r"at least one dimension, got shape \(0,\)"):
+        state_space_of(spaces.Box(0, 1, (0,)))
+    with pytest.raises(ValueError, match="at least one dimension"):
+        state_space_of(spaces.Dict({"state": spaces.Box(0, 1, (0,)), "task": spaces.Discrete(2)}))
+
+
+def test_read_observation_asks_a_dict_env_for_dicts():
+    """A plain array on a Dict env was read as task 0's states, then failed in SB3 with an IndexError."""
+    space = multitask_space(spaces.Discrete(3))
+    with pytest.raises(ValueError, match=r"must be a \{'state': \.\.\., 'task': \.\.\.\} dict"):
+        read_observation(np.array([0.5, 1.0, 2.5]), space)
+    states, tasks = read_observation({"state": np.array([0.5, 1.0, 2.5]), "task": 2}, space)
+    assert states.shape == (1, 3) and tasks.tolist() == [2]
+
+
+@pytest.mark.parametrize("task", [3, -1], ids=["past-the-end", "negative"])
+def test_read_observation_refuses_a_task_outside_the_task_space(task):
+    """An env emitting a task outside its Discrete made TRLSD fail with an IndexError in the policy."""
+    with pytest.raises(ValueError, match=r"in 0\.\.2 \(the observation space's 'task' Discrete\(3\)\)"):
+        read_observation(
+            {"state": np.array([0.5, 1.0, 2.5]), "task": task}, multitask_space(spaces.Discrete(3))
+        )

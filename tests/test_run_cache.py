@@ -3,6 +3,7 @@ The kept runs of ``reproduce``: keys, code fingerprints, the ``.npz`` + JSON for
 damaged files, and ``run_jobs`` loading, running and keeping them.
 """
 
+import errno
 import json
 import os
 import pickle
@@ -181,6 +182,23 @@ def test_a_kept_run_comes_back_as_it_was_stored(tmp_path):
     assert (loaded["pair"], loaded["nothing"], loaded["flag"], loaded["count"]) == ((1, "a"), None, True, 7)
     with np.load(tmp_path / "run.npz", allow_pickle=False) as archive:  # nothing in it needs unpickling
         assert all(archive[name].dtype != object for name in archive.files)
+
+
+def test_a_store_that_fails_midway_keeps_the_earlier_run(tmp_path, monkeypatch):
+    """A full disk midway through the arrays leaves the run kept before whole, and no partial file."""
+    cache = RunCache(tmp_path)
+    cache.store(tmp_path / "run.npz", {"record": a_record()})
+
+    def failing(file, array, *args, **kwargs):
+        file.write(b"\x00" * 64)
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(np.lib.format, "write_array", failing)
+    with pytest.raises(OSError, match="No space left"):
+        cache.store(tmp_path / "run.npz", {"record": a_record(), "more": np.zeros(3)})
+    monkeypatch.undo()
+    assert_same_records([cache.load(tmp_path / "run.npz")["record"]], [a_record()])
+    assert os.listdir(tmp_path) == ["run.npz"]
 
 
 @dataclass

@@ -252,6 +252,13 @@ def test_multi_task_env_triggers_each_task_on_its_own():
         ({"rbf_sigma": -0.2}, "rbf_sigma"),
         ({"policy_kwargs": {"rbf_per_dim": 7}}, "rbf_per_dim"),
         ({"first_fit": "first_reward"}, "first_fit"),
+        ({"buffer_size": 0}, "buffer_size"),
+        ({"buffer_size": -10}, "buffer_size"),
+        ({"buffer_size": np.nan}, "buffer_size"),
+        ({"buffer_size": 100, "source_transitions": 500}, "buffer_size >= 500"),
+        ({"learning_starts": np.inf}, "learning_starts"),
+        ({"seed": np.nan}, "seed"),
+        ({"train_freq": (4, "epoch")}, "train_freq"),
     ],
     ids=[
         "negative-kappa",
@@ -274,6 +281,13 @@ def test_multi_task_env_triggers_each_task_on_its_own():
         "negative-rbf-sigma",
         "rbf-in-policy-kwargs",
         "unknown-first-fit",
+        "zero-buffer",
+        "negative-buffer",
+        "nan-buffer",
+        "source-larger-than-buffer",
+        "inf-learning-starts",
+        "nan-seed",
+        "unknown-train-freq-unit",
     ],
 )
 def test_bad_hyperparameters_are_refused_by_name(kwargs, argument):
@@ -293,8 +307,9 @@ def test_one_policy_kwargs_dict_builds_several_models():
 
 def test_bad_policy_and_spaces_are_refused():
     """An unknown policy, a continuous action space or an observation without a state Box is refused."""
-    with pytest.raises(ValueError, match="policy must be one of"):
-        TRLSD("CnnPolicy", gym.make(MAZE_ID))
+    for policy in ("CnnPolicy", 3, dict):
+        with pytest.raises(ValueError, match="policy must be one of"):
+            TRLSD(policy, gym.make(MAZE_ID))
     with pytest.raises(ValueError, match="action_space must be Discrete"):
         TRLSD("LinearPolicy", "Pendulum-v1")
     with pytest.raises(ValueError, match="observation_space"):
@@ -388,3 +403,87 @@ def test_actions_and_tasks_not_numbered_from_0_are_refused_when_the_model_is_mad
     shifted = gym.wrappers.TransformAction(env, lambda a: a - 1, spaces.Discrete(4, start=1))
     with pytest.raises(ValueError, match=r"number its actions from 0, got Discrete\(4, start=1\)"):
         TRLSD("LinearPolicy", shifted)
+
+
+def test_a_model_without_an_env_is_refused_unless_load_makes_it(tmp_path):
+    """env=None failed with an AttributeError deep in SB3; load's own env=None, unbuilt, must still work."""
+    with pytest.raises(ValueError, match="env must be an env"):
+        TRLSD("LinearPolicy", None)
+    assert TRLSD("LinearPolicy", None, _init_setup_model=False).config.reward_head == "thompson"
+
+
+def test_loading_more_transitions_than_the_buffer_holds_is_refused_naming_the_sizes(source_transitions):
+    """The ring kept the last rows of the source set and dropped the others, silently."""
+    model = TRLSD("LinearPolicy", gym.make(MAZE_ID), buffer_size=4_000, seed=0)
+    model.load_transitions(source_transitions)
+    with pytest.raises(ValueError, match=r"next to its 3000 rows: buffer_size=4000 .* buffer_size >= 6000"):
+        model.load_transitions(source_transitions)
+    assert model.replay_buffer.size() == len(source_transitions)
+
+
+@pytest.mark.timeout(60)
+@pytest.mark.parametrize("train_freq", [10**12, (10**12, "episode")], ids=["steps", "episodes"])
+def test_a_train_freq_beyond_total_timesteps_is_refused_before_learn_runs_past_it(train_freq):
+    """SB3 collects a whole train_freq before it looks at total_timesteps: learn(10) ran 10**12 steps."""
+    model = TRLSD("LinearPolicy", gym.make(MAZE_ID), train_freq=train_freq, seed=0)
+    with pytest.raises(ValueError, match=r"train_freq=1000000000000 (step|episode)s .* train_freq <= 10"):
+        model.learn(total_timesteps=10)
+    assert model.num_timesteps == 0
+
+
+class TaskOutside(gym.Wrapper):
+    """The maze (its 'task' Discrete(25)) whose observations, from step ``at`` on, name task 30."""
+
+    def __init__(self, at):
+        super().__init__(gym.make(MAZE_ID, tasks=[(1, 1), (5, 5)]))
+        self.at, self.steps = at, 0
+
+    def step(self, action):
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        self.steps += 1
+        return ({**obs, "task": 30} if self.steps >= self.at else obs), reward, terminated, truncated, info
+
+
+def test_an_env_emitting_a_task_outside_its_discrete_is_named_by_learn():
+    """Acting on it failed with an IndexError inside the policy's parameters (its Q of task 30)."""
+    model = TRLSD("LinearPolicy", TaskOutside(at=3), seed=0)
+    with pytest.raises(ValueError, match=r"tasks must be in 0\.\.24 .* got \[30\]"):
+        model.learn(total_timesteps=20)
+    assert max(model.task_learners, default=0) < 25
+
+
+def test_predict_of_an_array_on_a_dict_env_asks_for_the_dict():
+    """A plain state on a {"state", "task"} env failed in SB3 with an IndexError about indices."""
+    model = TRLSD("LinearPolicy", gym.make(MAZE_ID, tasks=[(1, 1), (5, 5)]), seed=0)
+    with pytest.raises(ValueError, match=r"pass \{'state': states, 'task': tasks\}"):
+        model.predict(np.array([1.0, 1.0], dtype=np.float32))
+    with pytest.raises(ValueError, match="dict"):
+        model.act(np.array([1.0, 1.0], dtype=np.float32))
+
+
+@pytest.mark.parametrize(
+    ("policy", "kappa", "message"),
+    [
+        ("LinearPolicy", 1e30, "the Q-function Fitted-Q gave task 0 .* is not finite"),
+        ("LinearPolicy", 1e40, "beyond float32's range"),
+        ("MlpPolicy", 1e40, "beyond float32's range"),
+        ("LinearPolicy", 1e308, "the relabelled rewards of task 0 are not finite"),
+    ],
+    ids=[
+        "linear-q-overflows",
+        "linear-returns-beyond-float32",
+        "mlp-returns-beyond-float32",
+        "rewards-overflow",
+    ],
+)
+def test_optimism_that_overflows_q_is_refused_naming_kappa(source_transitions, policy, kappa, message):
+    """
+    kappa = 1e40 gave a NaN Q, on which predict took action 0 at every state, silently (the MLP failed in
+    torch's clamp): the refit raises, naming kappa.
+    """
+    model = TRLSD(policy, gym.make(MAZE_ID), reward_head="ridge", kappa=kappa, seed=0)
+    model.load_transitions(source_transitions)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the overflows' own on the way
+        with pytest.raises(ValueError, match=f"{message}.*lower kappa"):
+            model.learn(total_timesteps=5)

@@ -1,8 +1,11 @@
 """TRLSD's learning state: one owner per task, nothing lost on save/load, validation before storing."""
 
 import base64
+import errno
+import io
 import json
 import os
+import pickle
 import subprocess
 import sys
 import warnings
@@ -11,6 +14,8 @@ import zipfile
 import gymnasium as gym
 import numpy as np
 import pytest
+import torch as th
+from stable_baselines3.common.vec_env import DummyVecEnv
 
 from sb3_trlsd import TRLSD, TaskLearner
 from sb3_trlsd.fqi import DEFAULT_TOL
@@ -102,10 +107,12 @@ def test_a_model_saved_without_its_rows_warns_at_learn_and_names_the_call(tmp_pa
         loaded.learn(total_timesteps=2)
 
 
-def online_step(model, reward=0.0, state=(1.0, 1.0), next_state=(1.5, 1.0), task=0):
+def online_step(
+    model, reward=0.0, state=(1.0, 1.0), next_state=(1.5, 1.0), task=0, terminated=False, truncated=False
+):
     obs = {"state": np.array(state, dtype=np.float32), "task": task}
     next_obs = {"state": np.array(next_state, dtype=np.float32), "task": task}
-    model.add_online_transition(obs, 2, reward, next_obs, False, False)
+    model.add_online_transition(obs, 2, reward, next_obs, terminated, truncated)
 
 
 @pytest.mark.parametrize(
@@ -116,8 +123,20 @@ def online_step(model, reward=0.0, state=(1.0, 1.0), next_state=(1.5, 1.0), task
         ({"state": (np.nan, 1.0)}, "state"),
         ({"next_state": (1.0, np.inf)}, "next state"),
         ({"task": 25}, "tasks"),
+        ({"truncated": 0.5}, "truncated must be booleans"),
+        ({"truncated": 2}, "truncated must be booleans"),
+        ({"terminated": 2}, "terminated must be booleans"),
     ],
-    ids=["nan-reward", "inf-reward", "nan-state", "inf-next-state", "task-out-of-range"],
+    ids=[
+        "nan-reward",
+        "inf-reward",
+        "nan-state",
+        "inf-next-state",
+        "task-out-of-range",
+        "half-truncation",
+        "truncation-of-2",
+        "termination-of-2",
+    ],
 )
 def test_a_bad_online_transition_leaves_the_model_as_it_was_and_learning(source_transitions, step, message):
     """Rejected before anything is stored: buffer, head, step count and refits unchanged; then it learns."""
@@ -217,3 +236,208 @@ def test_a_user_package_named_envs_does_not_break_the_mazes_registration(tmp_pat
     )
     assert result.returncode == 0, result.stderr
     assert result.stdout.strip() == "sb3_trlsd_envs.maze"
+
+
+def fail_midway(monkeypatch, module, name, at_call):
+    """
+    Make ``module.name``, a writer taking ``(obj, file)``, write a few bytes and then fail as a full disk
+    does at its ``at_call``-th call (1: the first), the calls before it going through.
+    """
+    writer, calls = getattr(module, name), []
+
+    def failing(obj, file, *args, **kwargs):
+        calls.append(name)
+        if len(calls) < at_call:
+            return writer(obj, file, *args, **kwargs)
+        file.write(b"\x00" * 64)
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(module, name, failing)
+
+
+def small_learnt_model(steps=60):
+    model = TRLSD(
+        "LinearPolicy", gym.make(MAZE_ID, task=(1, 5)), source_transitions=300, buffer_size=2_000, seed=0
+    )
+    return model.learn(total_timesteps=steps)
+
+
+def what_was_saved(model):
+    """Everything a checkpoint must give back: the Q's parameters, the buffer's rows, the greedy actions."""
+    states = np.random.default_rng(0).uniform(0, 5, size=(50, 2)).astype(np.float32)
+    parameters = {name: value.clone() for name, value in model.policy.state_dict().items()}
+    actions = model.predict({"state": states, "task": np.full(50, 4)}, deterministic=True)[0]
+    return parameters, model.replay_buffer.packed_rows(), actions
+
+
+def save_model(model, path):
+    model.save(path)
+
+
+def load_model(path, model):
+    return TRLSD.load(path)  # a new model: nothing of ``model`` in it
+
+
+def save_buffer(model, path):
+    model.save_replay_buffer(path)
+
+
+def load_buffer(path, model):
+    model.load_replay_buffer(path)  # its rows replace those learnt since the save
+    return model
+
+
+@pytest.mark.parametrize(
+    ("save", "load", "file_name", "writer"),
+    [
+        (save_model, load_model, "model.zip", (th, "save", 2)),
+        (save_buffer, load_buffer, "buffer.pkl", (pickle, "dump", 1)),
+    ],
+    ids=["model-zip", "replay-buffer-pkl"],
+)
+def test_a_save_that_fails_midway_leaves_the_earlier_checkpoint_loadable_exactly(
+    tmp_path, monkeypatch, save, load, file_name, writer
+):
+    """
+    A save that fails as a full disk does (an OSError midway through the file) must not have destroyed the
+    checkpoint it was to replace: written in place, the earlier zip or pickle is cut short and cannot be
+    loaded (EOFError, KeyError). The earlier one loads exactly (parameters, buffer rows, greedy actions), and
+    no partial file is left beside it.
+    """
+    model = small_learnt_model()
+    path = tmp_path / file_name
+    save(model, path)
+    saved = what_was_saved(model)
+    model.learn(total_timesteps=40, reset_num_timesteps=False)
+    with monkeypatch.context() as patch:
+        fail_midway(patch, *writer)
+        with pytest.raises(OSError, match="No space left"):
+            save(model, path)
+    assert os.listdir(tmp_path) == [file_name]
+    loaded = load(path, model)
+    ours = what_was_saved(loaded)
+    np.testing.assert_array_equal(ours[1], saved[1])
+    if save is save_model:  # a buffer's file holds its rows only
+        assert ours[0].keys() == saved[0].keys()
+        assert all(th.equal(ours[0][name], saved[0][name]) for name in saved[0])
+        np.testing.assert_array_equal(ours[2], saved[2])
+
+
+def test_a_model_that_never_learnt_saves_and_loads(tmp_path):
+    """An empty buffer has rows of no column: packing them must not fail, or no fresh model can be saved."""
+    model = TRLSD("LinearPolicy", gym.make(MAZE_ID), seed=0)
+    model.save(tmp_path / "fresh")
+    assert TRLSD.load(tmp_path / "fresh").replay_buffer.size() == 0
+
+
+@pytest.mark.parametrize(
+    ("folder", "given"),
+    [("runs", "runs/"), ("runs.v1", "runs.v1"), ("model.zip", "model")],
+    ids=["path-with-a-slash", "folder-with-a-suffix", "folder-named-as-the-zip"],
+)
+def test_a_save_to_a_folder_is_refused_naming_it(tmp_path, folder, given):
+    """SB3 would save beside it, to PATH_2, with a warning a script does not see: refuse it, naming it."""
+    model = TRLSD("LinearPolicy", gym.make(MAZE_ID), seed=0)
+    (tmp_path / folder).mkdir()
+    path = str(tmp_path / given) + ("/" if given.endswith("/") else "")
+    with pytest.raises(ValueError, match="is a folder"):
+        model.save(path)
+    with pytest.raises(ValueError, match="is a folder"):
+        model.save_replay_buffer(str(tmp_path / folder) + "/")
+    assert os.listdir(tmp_path) == [folder] and not os.listdir(tmp_path / folder)
+
+
+def test_a_folder_beside_the_zip_is_no_obstacle(tmp_path):
+    """As in SB3 (the RL Zoo keeps a folder of the env's name beside its zip): NAME gives NAME.zip."""
+    (tmp_path / "model").mkdir()
+    TRLSD("LinearPolicy", gym.make(MAZE_ID), seed=0).save(tmp_path / "model")
+    assert sorted(os.listdir(tmp_path)) == ["model", "model.zip"]
+
+
+def test_a_save_to_a_file_object_and_a_path_without_suffix_keep_sb3s_semantics(tmp_path):
+    """A path without a suffix gets ``.zip``; a file object is written to as it is, and left open."""
+    model = TRLSD("LinearPolicy", gym.make(MAZE_ID), source_transitions=50, seed=0)
+    model.learn(total_timesteps=5)
+    model.save(tmp_path / "sub" / "model")
+    assert (tmp_path / "sub" / "model.zip").is_file()
+    stream = io.BytesIO()
+    model.save(stream)
+    assert not stream.closed
+    stream.seek(0)
+    np.testing.assert_array_equal(
+        TRLSD.load(stream).replay_buffer.packed_rows(), model.replay_buffer.packed_rows()
+    )
+
+
+def zip_without(source, target, entry):
+    with zipfile.ZipFile(source) as archive, zipfile.ZipFile(target, "w") as out:
+        for name in archive.namelist():
+            if name != entry:
+                out.writestr(name, archive.read(name))
+
+
+@pytest.mark.parametrize(
+    ("damage", "message"),
+    [
+        (lambda path, out: zip_without(path, out, "policy.pth"), r"lacks \['policy.pth'\]"),
+        (lambda path, out: zip_without(path, out, "pytorch_variables.pth"), "lacks"),
+        (lambda path, out: out.write_bytes(path.read_bytes()[:1000]), "cut short"),
+        (lambda path, out: out.write_bytes(b""), "cut short"),
+    ],
+    ids=["no-policy", "no-buffer-rows", "cut-short", "empty"],
+)
+def test_a_zip_that_is_not_a_whole_model_is_refused_naming_the_file(tmp_path, damage, message):
+    """SB3 fails on these with a KeyError (policy.optimizer) or an AssertionError, or loses the rows."""
+    model = TRLSD("LinearPolicy", gym.make(MAZE_ID), source_transitions=50, seed=0)
+    model.save(tmp_path / "model")
+    damage(tmp_path / "model.zip", tmp_path / "damaged.zip")
+    with pytest.raises(ValueError, match=message) as error:
+        TRLSD.load(tmp_path / "damaged")
+    assert "damaged.zip" in str(error.value)
+
+
+class Counter(gym.Env):
+    """
+    State t, the steps since the reset; every step moves t on by one. ``fail_at``: the step call that raises
+    (counted over the env's life) after the state has moved on, as a simulator failing midway does.
+    """
+
+    observation_space = gym.spaces.Box(0, 100, (1,), np.float32)
+    action_space = gym.spaces.Discrete(2)
+
+    def __init__(self, fail_at=None):
+        self.fail_at, self.calls, self.t = fail_at, 0, 0
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        self.t = 0
+        return np.zeros(1, np.float32), {}
+
+    def step(self, action):
+        self.calls += 1
+        self.t += 1
+        if self.calls == self.fail_at:
+            raise RuntimeError("the simulator failed")
+        return np.full(1, self.t, np.float32), 0.0, False, self.t >= 90, {}
+
+
+@pytest.mark.parametrize(
+    "envs",
+    [[Counter(fail_at=7)], [Counter(), Counter(fail_at=7)]],
+    ids=["env-moved-on-then-raised", "second-of-two-envs-raised"],
+)
+def test_learn_after_an_env_error_stores_no_transition_that_did_not_happen(envs):
+    """
+    An env raising inside step during learn leaves SB3's last observation behind the env (the failing env
+    had moved on, the envs before it in the VecEnv had stepped): going on paired it with the next one, a
+    row from t to t + 2. Every stored row is a step of one, or from a reset.
+    """
+    model = TRLSD(
+        "LinearPolicy", DummyVecEnv([lambda env=env: env for env in envs]), learning_starts=0, seed=0
+    )
+    with pytest.raises(RuntimeError, match="the simulator failed"):
+        model.learn(total_timesteps=40)
+    model.learn(total_timesteps=10, reset_num_timesteps=False)
+    rows = model.replay_buffer.transitions()
+    np.testing.assert_array_equal(rows.next_states - rows.states, 1.0)
+    assert len(rows) == 6 * len(envs) + 10  # six steps of each env before the error, ten after

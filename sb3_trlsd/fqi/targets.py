@@ -23,6 +23,7 @@ __all__ = [
     "FQIResult",
     "bellman_targets",
     "bellman_targets_by_action",
+    "check_finite_fit",
     "linear_q_values",
     "return_bounds",
     "targets_rule_cap",
@@ -116,6 +117,40 @@ class FQIResult:
     theta: np.ndarray | None = None
     converged: bool = True
     change: float = 0.0
+
+
+def check_finite_fit(task: int, rewards: np.ndarray, gamma: float, result: FQIResult | None = None) -> None:
+    """
+    Refuse a refit whose relabelled rewards are not finite or give returns, up to ``max |r| / (1 - gamma)``,
+    beyond float32's range (in which the features and networks compute), or whose fitted Q (``result``: its
+    Bellman residual and linear parameters) is not finite: a NaN Q makes every action tie, and the greedy
+    policy take action 0 at every state, silently. Optimism far beyond the reward scale (a huge ``kappa``) is
+    the usual cause.
+
+    :param task: the task refitted, named in the error
+    :param rewards: the rewards it is fitted on, (n,)
+    :param gamma: the discount factor
+    :param result: the fit's result (None: the rewards only, before the fit)
+    :raises ValueError: naming the task, the largest reward and the settings to change
+    """
+    largest = float(np.max(np.abs(rewards), initial=0.0))
+    if not math.isfinite(largest):
+        what = f"the relabelled rewards of task {task} are not finite (NaN or inf)"
+    elif largest / (1.0 - gamma) > np.finfo(np.float32).max:
+        what = (
+            f"the relabelled rewards of task {task}, up to {largest:.3g}, give returns beyond float32's "
+            "range in which Q is computed"
+        )
+    elif result is not None and not (
+        math.isfinite(result.bellman_residual) and (result.theta is None or np.all(np.isfinite(result.theta)))
+    ):
+        what = f"the Q-function Fitted-Q gave task {task} on rewards up to {largest:.3g} is not finite"
+    else:
+        return
+    raise ValueError(
+        f"{what}, on which predict would take action 0 everywhere: lower kappa (the optimism of "
+        "R~ = R^ + kappa * CI, in reward units) or rescale the env's rewards"
+    )
 
 
 def linear_q_values(phi: np.ndarray, theta: np.ndarray) -> np.ndarray:

@@ -23,7 +23,6 @@ import hashlib
 import importlib.util
 import inspect
 import json
-import os
 import sys
 from collections.abc import Callable, Mapping
 from pathlib import Path
@@ -31,6 +30,7 @@ from typing import Any
 
 import numpy as np
 
+from sb3_trlsd.atomic_files import atomic_write
 from sb3_trlsd.data import load_npz_arrays
 
 __all__ = [
@@ -323,13 +323,5 @@ class RunCache:
         """
         arrays: dict[str, np.ndarray] = {}
         structure = json.dumps({"format": FORMAT_VERSION, "result": encode(result, arrays)})
-        temporary_path = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-        try:
-            with open(temporary_path, "wb") as file:
-                np.savez(file, allow_pickle=False, **{RESULT_ENTRY: np.array(structure)}, **arrays)
-                file.flush()
-                os.fsync(file.fileno())
-            os.replace(temporary_path, path)
-        except BaseException:
-            temporary_path.unlink(missing_ok=True)
-            raise
+        with atomic_write(path, "wb") as file:
+            np.savez(file, allow_pickle=False, **{RESULT_ENTRY: np.array(structure)}, **arrays)

@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from sb3_trlsd.atomic_files import atomic_path
 from sb3_trlsd_envs import task_cell
 from sb3_trlsd_envs.dynamics import DEFAULT_WALLS
 from sb3_trlsd_lab.execution.protocols import Protocol, protocol_record
@@ -72,10 +73,11 @@ def protocol_title(title: str, protocol: Protocol) -> str:
 
 
 def save_figure(figure: Any, path: Path, title: str) -> None:
-    """Title the figure (wrapped to its width) and write it as a PNG."""
+    """Title the figure (wrapped to its width) and write it as a PNG, whole or not at all."""
     figure.suptitle(textwrap.fill(title, width=int(11 * figure.get_figwidth())))
     figure.tight_layout()
-    figure.savefig(path)
+    with atomic_path(path) as temporary:
+        figure.savefig(temporary, format=Path(path).suffix.lstrip(".") or None)
 
 
 def draw_snapshot(ax: Any, snapshot: Snapshot, task: int, title: str) -> None:

@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from sb3_trlsd.atomic_files import atomic_write
 from sb3_trlsd.version import __version__
 from sb3_trlsd_lab.stats.bootstrap import aggregate_intervals, interval_cell
 
@@ -186,7 +187,7 @@ def write_curves_csv(path: Path, x_name: str, curves: Mapping[str, np.ndarray]) 
     :param x_name: name of the x column (``transition``, ``episode``, ...), x = 0, 1, ...
     :param curves: method -> (runs, points) values
     """
-    with open(path, "w", newline="") as file:
+    with atomic_write(path, "w", newline="") as file:
         writer = csv.writer(file)
         writer.writerow([x_name, "method", "mean", "se", "runs"])
         for method, values in curves.items():
@@ -288,8 +289,8 @@ def summary(figure: str, parameters: Mapping[str, Any], seed: int, seconds: floa
 
 
 def write_json(path: Path, data: Mapping[str, Any]) -> None:
-    """Write ``data`` as indented JSON."""
-    with open(path, "w") as file:
+    """Write ``data`` as indented JSON, whole or not at all (``atomic_write``)."""
+    with atomic_write(path, "w") as file:
         json.dump(data, file, indent=2)
         file.write("\n")
 

@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from sb3_trlsd.atomic_files import atomic_write
 from sb3_trlsd_lab.benchmarks.mo_suite.families import Family, collect_source, family_named
 from sb3_trlsd_lab.benchmarks.mo_suite.peers import METHODS, PeerResult, run_method
 from sb3_trlsd_lab.execution.jobs import run_jobs
@@ -203,7 +204,7 @@ def goals(
 def write_rows(path: Path, rows: Mapping[str, Sequence[Mapping[str, Any]]]) -> None:
     """One CSV row per run: method, run, task, seed, score, seconds, online ms per step, updates."""
     columns = ["run", "task", "seed", "score", "seconds", "online_ms_per_step", "updates"]
-    with open(path, "w", newline="") as file:
+    with atomic_write(path, "w", newline="") as file:
         writer = csv.writer(file)
         writer.writerow(["method", *columns])
         for method, runs in rows.items():
