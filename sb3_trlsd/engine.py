@@ -310,14 +310,16 @@ class Engine:
                 states[rows], actions[rows], rewards[rows], next_states[rows], tasks[rows],
                 truncated[rows], terminated[rows],
             )  # fmt: skip
+        # What the learners see of a state is the state as the buffers store it (float32 for a float Box).
+        stored = self.runs[int(runs[0])].buffer.observations.dtype if len(runs) else np.float64
+        states, next_states = np.asarray(states).astype(stored), np.asarray(next_states).astype(stored)
         for i, run_index in enumerate(runs):
             run = self.runs[run_index]
-            stored = run.buffer.observations.dtype  # what the learner sees: the state as stored
             learner = self.learner(run_index, tasks[i])
             learner.observe(
-                np.asarray(states[i]).astype(stored),
+                states[i],
                 int(actions[i]),
-                np.asarray(next_states[i]).astype(stored),
+                next_states[i],
                 float(rewards[i]),
                 n_rows=run.n_rows,
                 ended=bool(terminated[i] or truncated[i]),

@@ -154,9 +154,9 @@ class LinearRunsQFunctions:
     def extend(self, run: int, rows: Transitions, restart: bool) -> None:
         # A run's first rows are the shared ones, kept once for every run: its own rows come after them.
         assert not (restart and self._rows_seen[run]), "a run of a batch keeps every row: it never wraps"
-        own = np.arange(len(rows)) + self._rows_seen[run] >= self.n_shared
+        first_own = max(0, self.n_shared - self._rows_seen[run])  # rows before it are shared ones
         self._rows_seen[run] += len(rows)
-        self.own_rows[run].extend(rows.take(own))
+        self.own_rows[run].extend(rows if first_own == 0 else rows.take(np.arange(first_own, len(rows))))
 
     def fit(
         self,
