@@ -16,7 +16,6 @@ threads of the refits (``sb3_trlsd.engine.REFIT_BLAS_THREADS``, 1) to compare th
 from __future__ import annotations
 
 import argparse
-import time
 import warnings
 
 import gymnasium as gym
@@ -28,12 +27,13 @@ from sb3_trlsd import TRLSD, collect_transitions
 from sb3_trlsd.fqi import FQIResult
 from sb3_trlsd_envs import MAZE_ID
 from sb3_trlsd_lab.benchmarks.mo_suite.families import FAMILIES, available, collect_source, make_env
+from sb3_trlsd_lab.execution.runner import run_online
 
 TARGET_MS = 5.0  # per online step, averaged over 1,000 steps after 25,000 source rows, on 2 cores
 
 
 def timed_online(model: TRLSD, env: gym.Env, n_steps: int, seed: int) -> dict[str, float]:
-    """``n_steps`` online steps of ``model`` on ``env``: ms per step and what the refits did."""
+    """``n_steps`` online steps of ``model`` on ``env`` (the lab's loop): ms per step, what the refits did."""
     results: list[FQIResult] = []
     log_refit = model.engine.on_refit
 
@@ -44,16 +44,9 @@ def timed_online(model: TRLSD, env: gym.Env, n_steps: int, seed: int) -> dict[st
 
     model.engine.on_refit = record
     max_iterations = model.engine.max_iterations
-    start = time.perf_counter()
-    obs, _ = env.reset(seed=seed)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the cap's warning: counted below instead
-        for _ in range(n_steps):
-            action = model.act(obs)
-            next_obs, reward, terminated, truncated, _ = env.step(action)
-            model.add_online_transition(obs, action, float(reward), next_obs, terminated, truncated)
-            obs = env.reset()[0] if terminated or truncated else next_obs
-    seconds = time.perf_counter() - start
+        seconds = run_online(model, env, n_steps, seed, expected_rewards=False).seconds
     iterations = [result.iterations for result in results]
     return {
         "ms_per_step": 1000 * seconds / n_steps,

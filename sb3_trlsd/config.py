@@ -19,13 +19,13 @@ import math
 import os
 import warnings
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import Any
 
 import numpy as np
 from gymnasium import spaces
 
-from sb3_trlsd.engine import TIE_BREAKS, Exploration
+from sb3_trlsd.action_choice import TIE_BREAKS, Exploration
 from sb3_trlsd.feature_choice import FEATURE_MAPS, GRID_SHAPES, default_kernel_width, make_feature_map
 from sb3_trlsd.feature_maps import FeatureMap
 from sb3_trlsd.fqi import DEFAULT_TOL, STOP_RULES
@@ -173,21 +173,38 @@ def check_discount(gamma: float) -> None:
     _require(0 < _finite("gamma", gamma) < 1, "gamma", "in (0, 1)", gamma)
 
 
+# Settings of the features Phi that belong to TRLSD (which shares Phi between the policy and the heads).
+FEATURE_SETTINGS = ("features", "rbf_per_dim", "rbf_sigma", "rbf_overlap", "max_features", "state_bounds")
+
+
 def check_algorithm_settings(
+    gamma: float,
     buffer_size: int,
     learning_starts: int,
     train_freq: int | tuple[int, str],
     seed: int | None,
     source_transitions: int | str | os.PathLike | None,
+    log_picture_every: int,
+    policy_kwargs: Mapping[str, object] | None,
 ) -> None:
     """
-    Reject the settings ``TRLSD`` passes to SB3 that SB3 would take silently or fail on far from them,
-    naming each: a ``buffer_size`` of 0 or less (SB3 makes it one row) or NaN, a ``learning_starts`` that is
-    not a count (inf would never refit), a ``train_freq`` that is not a count of steps or episodes, a
-    ``seed`` numpy cannot take, and a number of ``source_transitions`` the buffer cannot hold.
+    Reject the settings of a ``TRLSD`` model beside its ``TRLSDConfig``, naming each: the discount factor, the
+    settings it passes to SB3 that SB3 would take silently or fail on far from them (a ``buffer_size`` of 0
+    or less, which SB3 makes one row, or NaN; a ``learning_starts`` that is not a count, inf never refitting;
+    a ``train_freq`` that is not a count of steps or episodes; a ``seed`` numpy cannot take), a number of
+    ``source_transitions`` the buffer cannot hold, ``log_picture_every``, and ``policy_kwargs`` that would
+    set the features TRLSD shares between the policy and the heads.
 
     :raises ValueError: naming the setting, its value and what it accepts
     """
+    check_discount(gamma)
+    _integer("log_picture_every", log_picture_every, 0)
+    shadowed = sorted(set(policy_kwargs or {}) & set(FEATURE_SETTINGS))
+    if shadowed:
+        raise ValueError(
+            f"policy_kwargs may not set {shadowed}: the features are TRLSD's, shared by the policy and "
+            "the reward heads; give feature_map, rbf_per_dim, rbf_sigma or state_bounds to TRLSD(...)"
+        )
     _integer("buffer_size", buffer_size, 1)
     _integer("learning_starts", learning_starts, 0)
     frequency, unit = (
@@ -225,51 +242,98 @@ def head_seed(seed: int | None, task: int) -> int | None:
 @dataclass(frozen=True)
 class TRLSDConfig:
     """
-    The settings of TRLSD's learning (see ``TRLSD`` for each one's meaning and where its default comes from).
-    Bad values raise a ``ValueError`` naming the setting when the config is made.
+    The settings of TRLSD's learning, whoever learns with them (a ``TRLSD`` model, the runs of an ``Engine``
+    stepped together, a ``RelabellingReplayBuffer``): each one's meaning is here, and ``TRLSD`` takes them as
+    its keyword arguments. Bad values raise a ``ValueError`` naming the setting when the config is made.
 
-    :param reward_head: a name of ``HEAD_NAMES`` or a ``RewardHead`` copied for each task
-    :param kappa: optimism (eq. 9, 10), in reward units (the ``"thompson"`` head's: in the units of its
-        ``kappa_scale``); 0 is the non-optimistic method (None: the head's, ``head_defaults``)
+    :param reward_head: ``"ridge"`` (eq. 9), ``"tabular"`` (per-cell means, eq. 10, on a grid over the state
+        box or a ``cell_fn``), ``"corners"`` (only the grid's corner cells pay), ``"known"`` (CI = 0); other
+        confidence bounds (``sb3_trlsd.reward_heads``): ``"ridge_posterior"`` (OFUL / LinUCB's kappa
+        sqrt(phi^T A^-1 phi) on the shared features, refitted when det A has grown by ``update_ratio``),
+        ``"thompson"`` (the default: posterior draws of the ridge weights of scale kappa, one per refit,
+        seeded by ``seed`` and the task) or ``"bernstein"`` (UCB-V's kernel-weighted empirical-Bernstein
+        bound, eq. 6 of width ``sigma``); or a ``RewardHead`` copied for each task
+    :param kappa: optimism (eq. 9, 10), in the env's reward units, and for ``"thompson"`` the posterior
+        scale, by default in units of the largest absolute reward seen (its ``kappa_scale="observed"``). 0 is
+        the non-optimistic method of Atkeson & Santamaria; the paper's continuous setting uses 0.1 on rewards
+        in [0, 1]. None: the head's (``sb3_trlsd.config.head_defaults``), 0.01 for ``"thompson"`` and 0 for
+        the others
     :param sigma: width of the similarity in W (eq. 8): for eq. 6 a fraction of the state box, one or one per
-        dimension (None: ``default_kernel_width(d)``); for eq. 7 a distance between feature vectors
-        (None: 0.2)
-    :param similarity: ``"state"`` (eq. 6) or ``"features"`` (eq. 7)
+        dimension (None: ``default_kernel_width(d)``, 0.04 in 2-D: the paper's 0.2 on the maze); for eq. 7
+        a distance between feature vectors (None: 0.2)
+    :param similarity: ``"state"`` (eq. 6, on states) or ``"features"`` (eq. 7, on RBF features)
     :param update_ratio: refit a task when the CI at an encountered state has been divided by this (> 1)
-    :param first_fit: when a task's Q is first fitted, one of ``FIRST_FIT_RULES``
+    :param first_fit: when a task's Q is first fitted (the paper does not say): ``"first_step"``, before its
+        first action, on the optimism of a head with no sample; ``"first_sample"``, once its first sample is
+        in (its first action is the unfitted Q's argmax)
     :param refit_growth: once the trigger has fired, a task's refit waits until its samples have grown by this
-        fraction since its last refit (>= 0; 0: at once, the paper)
-    :param optimism: where the buffer is relabelled with R~ rather than R^, one of ``OPTIMISM_RULES``:
-        ``"always"`` (the paper) or ``"with_source"`` (once the buffer holds rows the task did not collect)
-        (None: the head's, ``head_defaults``)
-    :param tie_break: the greedy action among equal Q-values while learning, one of ``TIE_BREAKS``:
-        ``"random"`` (seeded by the run's seed) or ``"first"``
-    :param exploration_initial_eps: the epsilon-greedy rate at a task's first online step, in [0, 1] (None:
-        the head's, ``head_defaults``: 1 for a head that learns the reward, 0 for one with nothing to learn)
-    :param exploration_final_eps: the rate once a task has ``exploration_steps`` online samples, in [0, 1]
-    :param exploration_steps: a task's online samples over which the rate falls linearly (>= 0)
-    :param fqi_max_iterations: cap on Fitted-Q iterations per refit (None: the Q-function's own default)
-    :param fqi_tol: Fitted-Q's relative stopping tolerance (see ``fqi_stop``; None: ``FQI_TOLS`` of the rule)
-    :param fqi_stop: Fitted-Q's stopping rule, one of ``STOP_RULES``: ``"targets"`` (the Bellman targets move
-        by less than ``fqi_tol`` of the return scale) or ``"theta"`` (the parameters move by less than
-        ``fqi_tol`` of their scale)
-    :param feature_map: Phi: a name of ``FEATURE_MAPS`` or a ``FeatureMap``
-    :param rbf_per_dim: RBF centres per state dimension: one integer, one per dimension, or ``"cube"`` /
-        ``"box"`` for counts from the box under ``max_features`` (None: the feature map's default)
-    :param rbf_sigma: width of the features, a fraction of the state box, one or one per dimension (None:
-        ``rbf_overlap`` times the spacing of the centres)
-    :param rbf_overlap: width of the RBFs in spacings of their centres, when ``rbf_sigma`` is None (None: the
-        feature map's default)
-    :param max_features: the feature map's budget of features (None: its default)
-    :param fourier_features: the number of Fourier features (None: the feature map's default)
+        fraction since its last refit: refits are then at most ~1 / refit_growth + ln(n) / ln(1 +
+        refit_growth) over n samples (rarely-switching optimism's lazy updates), so their cost per step
+        falls as a run goes on; 0 refits as soon as the trigger fires (the paper's Algorithm 1)
+    :param optimism: where the shared buffer is relabelled with the optimistic R~ rather than the estimate
+        R^: ``"always"`` (the paper), or ``"with_source"``, once the buffer holds rows the task did not
+        collect itself (a source, other tasks' rows); None: the head's, ``"with_source"`` for
+        ``"thompson"`` and ``"always"`` for the others. Fitted-Q sees the buffer's rows only, so optimism
+        reaches the Q-function through the rows it relabels: learning from scratch, a bonus or a posterior
+        draw values the rows visited against unvisited ones left at 0 and keeps the greedy policy among the
+        visited, where R^ (0 everywhere before a reward) leaves it to the tie-break and exploration
+    :param tie_break: the action taken among equal Q-values while learning (``learn``, ``act``, ``predict``
+        with ``deterministic=False``): ``"random"``, one of them drawn with a generator seeded by ``seed``
+        (a Q that is 0 everywhere, as before any reward is seen with kappa = 0, then explores at random
+        instead of repeating action 0), or ``"first"`` (the paper's reproduction). ``predict`` with
+        ``deterministic=True`` takes the first
+    :param exploration_initial_eps: epsilon-greedy while learning (``learn``, ``act``; ``predict`` stays
+        greedy), per task: the probability of a uniformly random action at a task's first online step. A
+        greedy policy on a Q that no reward supports yet is deterministic all the same and can walk into a
+        wall and stay there; random steps spread a new task's first samples instead. None: 1 for the heads
+        that learn the reward, 0 for a head with nothing to learn (``"known"``, or a ``RewardHead`` without
+        uncertainty), which acts greedily from its first step (``sb3_trlsd.config.head_defaults``); a value
+        given wins. 0 with ``exploration_final_eps=0`` is the paper's greedy policy (its reproduction)
+    :param exploration_final_eps: the probability once the task has ``exploration_steps`` online samples
+    :param exploration_steps: a task's online samples over which the probability falls linearly from
+        ``exploration_initial_eps`` to ``exploration_final_eps``. The schedule counts each task's own samples,
+        not the ``total_timesteps`` of ``learn`` (SB3's DQN's ``exploration_fraction``): TRLSD meets new
+        tasks as it goes, and ``act`` knows no budget
+    :param fqi_max_iterations: cap on Fitted-Q iterations per refit (None: the policy's own default, 500
+        linear and 200 MLP, and under ``fqi_stop="targets"`` at most ``sb3_trlsd.fqi.targets_rule_cap(gamma,
+        fqi_tol)``, three times what a gamma-contraction needs: 198 at gamma 0.9)
+    :param fqi_tol: Fitted-Q's relative stopping tolerance (see ``fqi_stop``; None: 1e-3 on the targets,
+        1e-4 on theta)
+    :param fqi_stop: Fitted-Q's stopping rule: ``"targets"``, once the Bellman targets move by less than
+        ``fqi_tol`` of the return scale (what the next fit can still change on the data); ``"theta"``, once
+        the parameters move by less than ``fqi_tol`` of their scale (the paper's reproduction: with float32
+        features, directions of theta the data does not see may never settle). A refit that reaches
+        ``fqi_max_iterations`` first warns (``sb3_trlsd.fqi.FQICapWarning``)
+    :param feature_map: Phi, shared by the linear policy and the feature heads: ``"auto"`` (on a Box of
+        integers with at most 125 points, ``"lattice"``; else a grid of RBFs 1.5 spacings wide, counts from
+        the box under ``max_features``, while every dimension gets at least 3 centres; else a row of RBFs per
+        dimension, added), ``"lattice"`` (one RBF per integer point of the box, half a spacing wide: a
+        grid-world's cells), ``"paper"`` (eq. 11: the grid up to 125 centres, a fifth of the spacing wide,
+        else Fourier features), ``"rbf"``, ``"additive"``, ``"fourier"``, or a ``FeatureMap`` (see
+        ``sb3_trlsd.feature_choice.make_feature_map``)
+    :param rbf_per_dim: RBF centres per state dimension: one integer, one per dimension, or ``"cube"`` (the
+        same count in every dimension) / ``"box"`` (counts proportional to the box's sides, in its units)
+        under ``max_features``; None: the feature map's default (``"cube"``; 5 for ``"paper"``)
+    :param rbf_sigma: width of the features, a fraction of the state box (one, or one per dimension); None:
+        ``rbf_overlap`` spacings of the centres, ``default_kernel_width(d)`` for Fourier features
+    :param rbf_overlap: width of the RBFs in spacings of their centres (None: 1.5, the paper's 0.2 for
+        ``"paper"``); not with ``rbf_sigma``
+    :param max_features: the feature map's budget (None: 64, 125 for ``"paper"``)
+    :param fourier_features: the number of Fourier features (None: 50 per state dimension)
     :param state_bounds: ``(low, high)`` of the states for an unbounded Box (None: the Box's, finite)
-    :param reward_head_kwargs: extra arguments of the named reward heads
-    :param reward_timing: what of a transition its reward belongs to: ``"start_state"`` (the paper's
-        R_tau(s)), ``"next_state"`` (the state it arrives at: a goal paid on arrival), ``"transition"`` (the
-        pair (s, s'): a reward for a change of state), ``"step"`` ((s, a, s'): a reward that also depends on
-        the action, as a cost per action) or ``"auto"`` (the env's ``metadata["reward_timing"]``
-        where it declares one, else ``"step"``, Gymnasium's r(s, a, s'), for the heads that can learn it,
-        ``STEP_HEAD_NAMES``, and ``"next_state"`` for the others)
+    :param reward_head_kwargs: extra arguments of the named reward heads (e.g. ``w_floor``, ``r_max``;
+        ``ridge`` of the linear-posterior heads, ``seed`` and ``kappa_scale`` of ``"thompson"``
+        (``"observed"``, its default here: kappa in units of the largest absolute reward seen; ``"reward"``:
+        in the env's reward units), ``reward_range`` of
+        ``"bernstein"``); one the head does not take is refused (``reward_heads.head_arguments``)
+    :param reward_timing: what of a transition its reward belongs to, which the reward heads learn and
+        relabel at: ``"start_state"`` (the paper's R_tau(s)), ``"next_state"`` (the state it arrives at:
+        e.g. a goal paid on arrival), ``"transition"`` (the pair (s, s'), whose features are Phi(s) and
+        Phi(s') side by side: a reward paid the first time a place is reached, say), ``"step"`` ((s, a, s'),
+        the action's one-hot code between them: a cost per action too) or ``"auto"`` (the env's
+        ``metadata["reward_timing"]`` where it declares one, as this package's envs do, else ``"step"``,
+        Gymnasium's r(s, a, s'), for the heads that can learn it and ``"next_state"`` for the ``"known"``
+        and tabular heads)
     """
 
     reward_head: str | RewardHead = "thompson"
@@ -294,8 +358,22 @@ class TRLSDConfig:
     max_features: int | None = None
     fourier_features: int | None = None
     state_bounds: Bounds | None = None
-    reward_head_kwargs: Mapping[str, Any] = field(default_factory=dict)
+    reward_head_kwargs: Mapping[str, Any] | None = field(default_factory=dict)
     reward_timing: str = "auto"
+
+    @classmethod
+    def of(cls, arguments: Mapping[str, object]) -> TRLSDConfig:
+        """
+        The settings among ``arguments``, a constructor's keyword arguments (its ``locals()``): each field of
+        the config found there, the others at their defaults. ``TRLSD`` and ``RelabellingReplayBuffer`` take
+        the settings as keyword arguments of their own and make their config this way.
+
+        :param arguments: names to values, any others among them ignored
+        :return: the config, checked
+        """
+        names = {setting.name for setting in fields(cls)}
+        given = {name: value for name, value in arguments.items() if name in names}
+        return cls(**given)  # type: ignore[arg-type]  # each value is checked by __post_init__
 
     def __post_init__(self) -> None:
         self._resolve_head()
@@ -623,7 +701,7 @@ class LearnerBuilder:
         if isinstance(config.reward_head, RewardHead):
             return copy.deepcopy(config.reward_head)
         assert config.kappa is not None, "resolved when the settings are made"
-        kwargs = dict(config.reward_head_kwargs)
+        kwargs = dict(config.reward_head_kwargs or {})
         if config.reward_head == "known":
             if reward_fn is None:
                 raise ValueError(

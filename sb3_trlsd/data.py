@@ -109,7 +109,10 @@ class Transitions:
             raise ValueError("Transitions.actions and tasks must be integer arrays")
         for name in ("states", "next_states", "rewards"):
             if not np.all(np.isfinite(getattr(self, name))):
-                raise ValueError(f"Transitions.{name} contains NaN or infinite values")
+                readable = name.replace("_", " ")
+                raise ValueError(
+                    f"Transitions.{name} contains NaN or infinite values: the {readable} must be finite"
+                )
 
     def take(self, rows: np.ndarray) -> Transitions:
         """

@@ -8,10 +8,14 @@ and calls, for a batch of transitions, each with its run:
   ``first_fit="first_step"``), then the greedy action argmax_a Q_run,tau(s, a) (eq. 3), replaced by a
   uniformly random one with the task's exploration rate (``Exploration``: epsilon-greedy over a task's first
   online steps; none in the paper);
-- ``observe(runs, ...)``: each transition goes to its run's buffer (at once, or held back until the run's
-  next refit) and its reward to its task's learner, whose trigger may fire (section 3);
+- ``step(runs, ...)``: what follows an env step, in one place: each transition is stored in its run's buffer
+  (at once, or held back until the run's next refit), its reward goes to its task's learner, whose trigger
+  may fire (section 3); it returns the tasks now due;
 - ``refit_due()``: the tasks whose trigger fired are refitted by Fitted-Q Iteration on their run's buffer
   relabelled with their reward proxy R~ (Algorithm 1, psi), all in one call of the Q-functions' fit.
+
+A refit reads the rows its run's buffer gained since the previous one once, through the run's one cursor
+(``RunRows``), and hands them to the Q-functions and to the learners' relabelling.
 
 ``TRLSD`` drives it with one run (its ``n_envs`` envs all feeding it) from SB3's rollout and from
 ``act``/``add_online_transition``; the experiments drive R runs of one method in lockstep. A run of a batch
@@ -28,28 +32,17 @@ from functools import cache
 import numpy as np
 from threadpoolctl import ThreadpoolController
 
-from sb3_trlsd.buffers import SharedDynamicsReplayBuffer
+from sb3_trlsd.action_choice import Exploration, greedy_actions
+from sb3_trlsd.arrays import GrowableArray
+from sb3_trlsd.buffers import BufferCursor, SharedDynamicsReplayBuffer
 from sb3_trlsd.data import Transitions
 from sb3_trlsd.fqi import FQIResult, check_finite_fit, targets_rule_cap
 from sb3_trlsd.q_functions import QFunctions
+from sb3_trlsd.reward_timing import rewarded_inputs
 from sb3_trlsd.task_learner import TaskLearner
 
-__all__ = [
-    "TIE_BREAKS",
-    "Engine",
-    "Exploration",
-    "NewLearner",
-    "RefitHook",
-    "Run",
-    "explore_rng",
-    "greedy_actions",
-    "tie_rng",
-]
+__all__ = ["Engine", "NewLearner", "RefitHook", "Run", "RunRows"]
 
-# How the greedy action of equal Q-values is taken while learning: the first such action, or one of them at
-# random (a Q that is 0 everywhere, before any reward was seen with kappa = 0, then acts at random instead of
-# repeating action 0).
-TIE_BREAKS = ("random", "first")
 # A refit's BLAS calls run on this many threads: its products are thin (rows x k features, k at most a few
 # hundred with the feature maps' budgets) and its solves small (k x k), where more threads cost more than
 # they give on 2 cores (docs/speed.rst).
@@ -68,85 +61,40 @@ NewLearner = Callable[[int, int], TaskLearner]
 RefitHook = Callable[[int, TaskLearner, FQIResult, np.ndarray], None]
 
 
-def _run_rng(seed: int | None, stream: int) -> np.random.Generator:
-    """A generator of its own for each ``stream`` of a run, derived from the run's seed (or fresh entropy)."""
-    if seed is None:
-        return np.random.default_rng()
-    return np.random.default_rng(np.random.SeedSequence([int(seed) % 2**64, stream]))
-
-
-def tie_rng(seed: int | None) -> np.random.Generator:
+class RunRows:
     """
-    The generator of a run's random tie-breaks, derived from the run's seed (fresh entropy without one).
+    What a run's refits have read of its buffer, through its one cursor: the rewarded inputs of every row
+    (``reward_timing``'s, the same for every task of the run), which the tasks' relabellings share.
 
-    :param seed: the run's seed (a model's ``seed``)
-    """
-    return _run_rng(seed, 5)
-
-
-def explore_rng(seed: int | None) -> np.random.Generator:
-    """
-    The generator of a run's exploratory actions, derived from the run's seed (fresh entropy without one).
-
-    :param seed: the run's seed (a model's ``seed``)
-    """
-    return _run_rng(seed, 7)
-
-
-@dataclass(frozen=True)
-class Exploration:
-    """
-    Epsilon-greedy behaviour while learning, per task: over a task's first ``steps`` online samples the
-    rate falls linearly from ``initial_eps`` to ``final_eps``, and stays at ``final_eps`` after; a step
-    takes a uniformly random action with that probability, else the greedy one.
-
-    :param initial_eps: the rate at a task's first online step, in [0, 1]
-    :param final_eps: the rate from its ``steps``-th on, in [0, 1]
-    :param steps: the online samples of a task over which the rate falls (0: ``final_eps`` from the start)
+    :param reward_timing: what of a transition its reward belongs to (``sb3_trlsd.reward_timing``)
     """
 
-    initial_eps: float = 0.0
-    final_eps: float = 0.0
-    steps: int = 0
+    def __init__(self, reward_timing: str):
+        self.reward_timing = reward_timing
+        self.cursor = BufferCursor()
+        self.inputs: GrowableArray | None = None  # (n, p) rewarded inputs of the rows read
+        self.generation = 0  # grows whenever the rows start over (the buffer lost rows)
 
-    def rate(self, samples: int) -> float:
+    def __getstate__(self) -> dict[str, object]:
+        # Derived from the buffer: a copied or loaded run reads it again from the start.
+        return {"reward_timing": self.reward_timing}
+
+    def __setstate__(self, state: dict[str, str]) -> None:
+        self.__init__(state["reward_timing"])  # type: ignore[misc]
+
+    def read(self, buffer: SharedDynamicsReplayBuffer) -> tuple[Transitions, bool]:
         """
-        The exploration rate of a task with ``samples`` online samples so far.
+        The rows ``buffer`` gained since the last read, their inputs kept.
 
-        :param samples: the task's online samples (>= 0)
+        :return: the new rows, oldest first, and whether the rows start over (every row is then returned)
         """
-        if samples >= self.steps:
-            return self.final_eps
-        return self.initial_eps + (self.final_eps - self.initial_eps) * samples / self.steps
-
-    @property
-    def explores(self) -> bool:
-        """Whether any step may be exploratory."""
-        return self.initial_eps > 0 or self.final_eps > 0
-
-
-def greedy_actions(
-    q_values: np.ndarray, rngs: Sequence[np.random.Generator | None] | None = None
-) -> np.ndarray:
-    """
-    argmax_a Q(s, a) of each state (eq. 3), a tie taken at random with the state's generator (None: the
-    first tied action). A draw is made for each state with a tie, in order, and for no other: the same
-    states give the same draws whichever way they are batched.
-
-    :param q_values: (n, n_actions)
-    :param rngs: one generator (or None) per state; None: no random tie-break
-    :return: actions (n,)
-    """
-    actions = q_values.argmax(axis=1)
-    if rngs is None:
-        return actions
-    tied = q_values == q_values[np.arange(len(q_values)), actions][:, None]
-    for i in np.flatnonzero(tied.sum(axis=1) > 1):
-        rng = rngs[int(i)]
-        if rng is not None:
-            choices = np.flatnonzero(tied[i])
-            actions[i] = choices[rng.integers(len(choices))]
-    return actions
+        rows, restart = buffer.read_new(self.cursor)
+        inputs = rewarded_inputs(rows.states, rows.actions, rows.next_states, self.reward_timing)
+        if restart or self.inputs is None:
+            self.inputs = GrowableArray(inputs.shape[1])
+            self.generation += 1
+        self.inputs.append(inputs)
+        return rows, restart
 
 
 @dataclass
@@ -156,24 +104,52 @@ class Run:
 
     :param buffer: the run's shared buffer, every transition of every task
     :param learners: its task learners by task, created the first time a task is met
-    :param pending: online transitions not yet written to the buffer (rows are read only at refits, so the
-        engine writes a batch of them at once), as (state, action, reward, next state, task, truncated,
-        terminated)
+    :param rows: what its refits have read of the buffer
+    :param hold_back: hold its online transitions back until its next refit, and write them then in one
+        call (rows are read only at refits); False writes each at once (a model's buffer, which its user
+        may read)
     :param ties: the generator of its greedy actions' random tie-breaks (None: the first tied action)
     :param explore: the generator of its exploratory actions (None: none, whatever the engine's
         ``Exploration``)
     """
 
     buffer: SharedDynamicsReplayBuffer
+    rows: RunRows
     learners: dict[int, TaskLearner] = field(default_factory=dict)
-    pending: list[tuple] = field(default_factory=list)
+    hold_back: bool = False
     ties: np.random.Generator | None = None
     explore: np.random.Generator | None = None
+    # online transitions held back, in order: (state, action, reward, next state, task, truncated, terminated)
+    pending: list[tuple[np.ndarray, int, float, np.ndarray, int, bool, bool]] = field(default_factory=list)
 
     @property
     def n_rows(self) -> int:
         """The run's transitions, written or held back."""
         return self.buffer.size() + len(self.pending)
+
+    def store(
+        self,
+        states: np.ndarray,
+        actions: np.ndarray,
+        rewards: np.ndarray,
+        next_states: np.ndarray,
+        tasks: np.ndarray,
+        truncated: np.ndarray,
+        terminated: np.ndarray,
+    ) -> None:
+        """
+        Store online transitions with their rewards: at once (validated first: a bad one raises a
+        ValueError and stores nothing), or held back until the next ``write_pending`` (``hold_back``).
+        """
+        if self.hold_back:
+            self.pending.extend(
+                zip(states, actions, rewards, next_states, tasks, truncated, terminated, strict=True)
+            )
+            return
+        self.buffer.add_transitions(
+            Transitions(states, actions, next_states, rewards, tasks, truncated, terminated),
+            keep_rewards=True,
+        )
 
     def write_pending(self) -> None:
         """Write the transitions held back to the buffer, in their order."""
@@ -298,7 +274,7 @@ class Engine:
         self.fit_first(runs, tasks)
         return self.behave(runs, states, tasks)
 
-    def observe(
+    def step(
         self,
         runs: np.ndarray,
         states: np.ndarray,
@@ -308,31 +284,78 @@ class Engine:
         tasks: np.ndarray,
         terminated: np.ndarray,
         truncated: np.ndarray,
-        store: bool = True,
-    ) -> None:
+    ) -> list[tuple[int, int]]:
         """
-        Take in transitions, each of its run: store it (unless the caller did), and feed its task's learner
-        its reward (which may make the task due for a refit).
+        What follows an env step, for a batch of transitions each of its run: store each in its run's buffer
+        (validated first: a bad one raises a ValueError before anything of the step is stored or learnt),
+        then feed its reward to its task's learner, whose refit trigger may fire. The learners see each
+        transition with the precision its buffer stores it (float32 states and rewards, as SB3's buffers).
 
         :param runs: the run of each transition, (n,)
         :param states: start states, (n, d)
         :param actions: (n,)
-        :param rewards: (n,); stored, and learnt from, in float32 as an SB3 buffer stores them
+        :param rewards: (n,)
         :param next_states: (n, d)
         :param tasks: (n,)
         :param terminated: whether each next state is absorbing, (n,)
         :param truncated: whether each trajectory was cut there, (n,)
-        :param store: hold the transitions for their run's buffer (False: the caller stored them already)
+        :return: the (run, task) pairs now due for a refit, in order (``due``)
         """
-        rewards = np.asarray(rewards).astype(np.float32).astype(np.float64)
+        runs, actions, tasks = np.asarray(runs), np.asarray(actions), np.asarray(tasks)
+        terminated, truncated = np.asarray(terminated, dtype=bool), np.asarray(truncated, dtype=bool)
+        rewards = np.asarray(rewards, dtype=np.float64).astype(np.float32).astype(np.float64)
+        for run_index in np.unique(runs):
+            rows = runs == run_index
+            self.runs[run_index].store(
+                states[rows], actions[rows], rewards[rows], next_states[rows], tasks[rows],
+                truncated[rows], terminated[rows],
+            )  # fmt: skip
+        # What the learners see of a state is the state as the buffers store it (float32 for a float Box).
+        stored = self.runs[int(runs[0])].buffer.observations.dtype if len(runs) else np.float64
+        states, next_states = np.asarray(states).astype(stored), np.asarray(next_states).astype(stored)
         for i, run_index in enumerate(runs):
             run = self.runs[run_index]
-            if store:
-                run.pending.append(
-                    (states[i], actions[i], rewards[i], next_states[i], tasks[i], truncated[i], terminated[i])
-                )
             learner = self.learner(run_index, tasks[i])
-            learner.observe(states[i], int(actions[i]), next_states[i], float(rewards[i]), n_rows=run.n_rows)
+            learner.observe(
+                states[i],
+                int(actions[i]),
+                next_states[i],
+                float(rewards[i]),
+                n_rows=run.n_rows,
+                ended=bool(terminated[i] or truncated[i]),
+            )
+        return self.due()
+
+    def load(self, run: int, transitions: Transitions, keep_rewards: bool) -> None:
+        """
+        Add transitions collected elsewhere to a run's buffer (the paper's source set Xi); with
+        ``keep_rewards``, each task's learner also learns the rewards of its transitions. Every fitted task of
+        the run is then due: its Q has new dynamics data to be refitted on.
+
+        :param run: the run
+        :param transitions: the transitions
+        :param keep_rewards: learn their rewards too (False, the paper's setting: the dynamics only)
+        :raises ValueError: when they do not fit in the buffer beside its rows, or do not fit its env
+        """
+        target = self.runs[run]
+        target.write_pending()
+        target.buffer.check_room(len(transitions))
+        target.buffer.add_transitions(transitions, keep_rewards=keep_rewards)
+        if keep_rewards:
+            for task in np.unique(transitions.tasks):
+                rows = transitions.tasks == task
+                self.learner(run, int(task)).learn(
+                    transitions.states[rows],
+                    transitions.actions[rows],
+                    transitions.next_states[rows],
+                    transitions.rewards[rows],
+                )
+        for learner in target.learners.values():
+            learner.due = learner.due or learner.fitted
+
+    def exploration_rate(self, run: int, task: int) -> float:
+        """The probability of an exploratory action at the next step of ``task`` in ``run``."""
+        return self.exploration.rate(self.learner(run, task).samples)
 
     def due(self) -> list[tuple[int, int]]:
         """The (run, task) pairs whose refit is due, in order."""
@@ -367,19 +390,37 @@ class Engine:
         with blas_controller().limit(limits=REFIT_BLAS_THREADS, user_api="blas"):
             return self._refit(pairs)
 
+    def relabelled_rewards(self, run: int, task: int) -> np.ndarray:
+        """
+        R~ of ``task`` at every row of ``run``'s buffer, oldest first (Algorithm 1, psi): the rewards its next
+        refit would fit on.
+
+        :param run: the run
+        :param task: the task
+        :return: rewards (n,)
+        """
+        self._read_new_rows(run)
+        rows = self.runs[run].rows
+        assert rows.inputs is not None, "read above"
+        return self.learner(run, task).relabelled_rewards(rows.inputs.view(), rows.generation)
+
+    def _read_new_rows(self, run_index: int) -> None:
+        """The run's one read of the rows its buffer gained: to its Q-functions, and kept for its tasks."""
+        run = self.runs[run_index]
+        run.write_pending()
+        new_rows, restart = run.rows.read(run.buffer)
+        self.q_functions.extend(run_index, new_rows, restart)
+
     def _refit(self, pairs: Sequence[tuple[int, int]]) -> list[FQIResult]:
-        for run in sorted({run for run, _ in pairs}):
-            self.runs[run].write_pending()
-        buffers = [run.buffer for run in self.runs]
-        rewards = [self.learner(run, task).relabelled_rewards(buffers[run]) for run, task in pairs]
-        for (_, task), task_rewards in zip(pairs, rewards, strict=True):
+        rewards = []
+        for run, task in pairs:
+            task_rewards = self.relabelled_rewards(run, task)
             check_finite_fit(task, task_rewards, self.gamma)
-        results = self.q_functions.fit(
-            pairs, buffers, rewards, self.gamma, self.max_iterations, self.tol, self.stop_rule
-        )
-        for (_, task), task_rewards, result in zip(pairs, rewards, results, strict=True):
-            check_finite_fit(task, task_rewards, self.gamma, result)
+            rewards.append(task_rewards)
+        fit_settings = (self.gamma, self.max_iterations, self.tol, self.stop_rule)
+        results = self.q_functions.fit(pairs, rewards, *fit_settings)
         for (run, task), result, task_rewards in zip(pairs, results, rewards, strict=True):
+            check_finite_fit(task, task_rewards, self.gamma, result)
             learner = self.learner(run, task)
             learner.refitted(n_rows=self.runs[run].n_rows)
             if self.on_refit is not None:

@@ -1,8 +1,8 @@
 """The shared buffer's transitions as a Q-function's fit consumes them, grown with the new rows only.
 
 Every task is fitted on the same transitions (with its own relabelled rewards), so one ``FitRows`` serves
-all of them. It reads the buffer through a cursor: a refit folds in the rows added since the previous one,
-and starts over only when the buffer has lost rows (wrap-around, reset, another buffer).
+all of them. It is handed the rows the buffer gained since the previous refit (the engine reads them once),
+and is cleared when the buffer has lost rows (wrap-around, reset, another buffer).
 """
 
 from __future__ import annotations
@@ -14,7 +14,6 @@ import numpy as np
 import torch as th
 
 from sb3_trlsd.arrays import GrowableArray
-from sb3_trlsd.buffers import BufferCursor, SharedDynamicsReplayBuffer
 from sb3_trlsd.data import Transitions
 from sb3_trlsd.fqi import LinearFQISolver
 
@@ -24,36 +23,23 @@ __all__ = ["FitRows", "LinearFitRows", "TransitionRows"]
 class FitRows(ABC):
     """Rows of the shared buffer in the form one kind of Q-function fits on."""
 
-    def __init__(self) -> None:
-        self._cursor = BufferCursor()
-
     @property
     @abstractmethod
     def n_transitions(self) -> int:
         """The rows held, in the buffer's order."""
 
-    def sync(self, buffer: SharedDynamicsReplayBuffer) -> None:
-        """
-        Hold exactly the buffer's rows: append the new ones, or start over when the buffer lost rows.
-
-        :param buffer: the shared buffer
-        """
-        rows, restart = buffer.read_new(self._cursor)
-        if restart:
-            self._clear()
-        if len(rows):
-            self._extend(rows)
-        assert self.n_transitions == buffer.size()
-
     def extend(self, rows: Transitions) -> None:
         """
-        Append rows read by the caller (e.g. a run's own rows, when the rows it shares with other runs are
-        another ``FitRows``): ``sync`` is for rows that are exactly one buffer's.
+        Append rows, in the buffer's order.
 
-        :param rows: the rows, in the buffer's order
+        :param rows: the rows
         """
         if len(rows):
             self._extend(rows)
+
+    def clear(self) -> None:
+        """Drop every row (the buffer lost rows: the next ``extend`` holds them all again)."""
+        self._clear()
 
     @abstractmethod
     def _clear(self) -> None:
@@ -87,7 +73,6 @@ class LinearFitRows(FitRows):
         self.features = features
         self._solver_settings = (n_features, n_actions, ridge, dtype)
         self.solver = LinearFQISolver(n_features, n_actions, ridge=ridge, dtype=dtype)
-        super().__init__()
 
     @property
     def n_transitions(self) -> int:
@@ -117,7 +102,6 @@ class TransitionRows(FitRows):
         self.inputs = inputs
         self.input_dim = input_dim
         self._clear()
-        super().__init__()
 
     @property
     def n_transitions(self) -> int:

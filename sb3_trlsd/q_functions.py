@@ -5,7 +5,8 @@ saves with the policy. ``LinearRunsQFunctions`` are the linear Q of R runs (thet
 k) on one feature map), refitted together by ``fit_linear_fqi_runs``: runs that start from the same source
 transitions share those rows, and the products of eq. 4 over them are matrix-matrix products for all runs.
 Both fit a run's Q on the rows of its shared buffer, relabelled for the task (the rewards come in the
-buffer's order, oldest first).
+buffer's order, oldest first); the engine hands them the rows each run's buffer gained since its last read
+(``extend``) before it fits.
 """
 
 from __future__ import annotations
@@ -16,7 +17,8 @@ from typing import Protocol
 
 import numpy as np
 
-from sb3_trlsd.buffers import BufferCursor, SharedDynamicsReplayBuffer
+from sb3_trlsd.buffers import SharedDynamicsReplayBuffer
+from sb3_trlsd.data import Transitions
 from sb3_trlsd.fit_rows import FitRows, LinearFitRows
 from sb3_trlsd.fqi import FQIResult, fit_linear_fqi_runs
 from sb3_trlsd.policies import LinearPolicy, TaskQPolicy
@@ -40,10 +42,19 @@ class QFunctions(Protocol):
         """
         ...
 
+    def extend(self, run: int, rows: Transitions, restart: bool) -> None:
+        """
+        Take the rows a run's buffer gained since the last call (the engine's one read of it).
+
+        :param run: the run
+        :param rows: the new rows, oldest first
+        :param restart: the buffer lost rows: ``rows`` are all of them, the earlier ones are gone
+        """
+        ...
+
     def fit(
         self,
         pairs: Sequence[tuple[int, int]],
-        buffers: Sequence[SharedDynamicsReplayBuffer],
         rewards: Sequence[np.ndarray],
         gamma: float,
         max_iterations: int,
@@ -51,11 +62,10 @@ class QFunctions(Protocol):
         stop_rule: str,
     ) -> list[FQIResult]:
         """
-        Refit the Q of each ``(run, task)`` on its run's buffer with those rewards, from its parameters now.
+        Refit the Q of each ``(run, task)`` on its run's rows with those rewards, from its parameters now.
 
         :param pairs: the (run, task) pairs
-        :param buffers: each run's shared buffer (indexed by run)
-        :param rewards: each pair's relabelled rewards, one per row of its run's buffer, oldest first
+        :param rewards: each pair's relabelled rewards, one per row of its run, oldest first
         :param gamma: discount factor
         :param max_iterations: cap on the fitted iterations
         :param tol: relative stopping tolerance
@@ -81,10 +91,15 @@ class PolicyQFunctions:
         assert not np.any(runs), "a policy holds the Q-functions of one run"
         return self.policy.q_values(states, tasks)
 
+    def extend(self, run: int, rows: Transitions, restart: bool) -> None:
+        assert run == 0, "a policy holds the Q-functions of one run"
+        if restart:
+            self.rows.clear()
+        self.rows.extend(rows)
+
     def fit(
         self,
         pairs: Sequence[tuple[int, int]],
-        buffers: Sequence[SharedDynamicsReplayBuffer],
         rewards: Sequence[np.ndarray],
         gamma: float,
         max_iterations: int,
@@ -94,7 +109,6 @@ class PolicyQFunctions:
         results = []
         for (run, task), task_rewards in zip(pairs, rewards, strict=True):
             assert run == 0, "a policy holds the Q-functions of one run"
-            self.rows.sync(buffers[run])
             results.append(
                 self.policy.fit(task, self.rows, task_rewards, gamma, max_iterations, tol, stop_rule)
             )
@@ -131,27 +145,28 @@ class LinearRunsQFunctions:
             self.shared_order = np.argsort(rows.actions, kind="stable")
             self.shared_rows = policy.new_fit_rows()
             self.shared_rows.extend(rows.take(self.shared_order))
-        # Each run reads its own rows, those after the shared ones.
-        self._cursors = [BufferCursor(buffer.epoch, self.n_shared) for buffer in buffers]
+        self._rows_seen = [0] * len(buffers)  # rows of each run taken so far, the shared ones included
 
     def q_values(self, runs: np.ndarray, states: np.ndarray, tasks: np.ndarray) -> np.ndarray:
         phi = self.features(np.asarray(states, dtype=np.float64))  # (n, k)
         return np.einsum("nk,nak->na", phi, self.theta[runs, tasks])
 
+    def extend(self, run: int, rows: Transitions, restart: bool) -> None:
+        # A run's first rows are the shared ones, kept once for every run: its own rows come after them.
+        assert not (restart and self._rows_seen[run]), "a run of a batch keeps every row: it never wraps"
+        first_own = max(0, self.n_shared - self._rows_seen[run])  # rows before it are shared ones
+        self._rows_seen[run] += len(rows)
+        self.own_rows[run].extend(rows if first_own == 0 else rows.take(np.arange(first_own, len(rows))))
+
     def fit(
         self,
         pairs: Sequence[tuple[int, int]],
-        buffers: Sequence[SharedDynamicsReplayBuffer],
         rewards: Sequence[np.ndarray],
         gamma: float,
         max_iterations: int,
         tol: float,
         stop_rule: str,
     ) -> list[FQIResult]:
-        for run in sorted({run for run, _ in pairs}):
-            rows, restart = buffers[run].read_new(self._cursors[run])
-            assert not restart, "a run of a batch keeps every row: its buffer never wraps around"
-            self.own_rows[run].extend(rows)
         fit = functools.partial(
             fit_linear_fqi_runs, gamma=gamma, max_iterations=max_iterations, tol=tol, stop_rule=stop_rule
         )

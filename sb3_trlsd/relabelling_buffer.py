@@ -25,7 +25,7 @@ from sb3_trlsd.data import Transitions
 from sb3_trlsd.feature_maps import FeatureMap
 from sb3_trlsd.observations import split_observation
 from sb3_trlsd.reward_heads import RewardFn, RewardHead
-from sb3_trlsd.reward_timing import rewarded_inputs
+from sb3_trlsd.task_learner import TaskLearner
 
 __all__ = ["RelabellingReplayBuffer", "dqn_q_values"]
 
@@ -127,7 +127,7 @@ class RelabellingReplayBuffer(SharedDynamicsReplayBuffer):
     :param relabel_online_rows: relabel the online rows too (False: they keep their observed reward)
     """
 
-    reward_heads: list[RewardHead]
+    learners: list[TaskLearner]
     features: FeatureMap | None
 
     def __init__(
@@ -157,21 +157,7 @@ class RelabellingReplayBuffer(SharedDynamicsReplayBuffer):
         relabel_online_rows: bool = False,
     ):
         # TRLSD's settings of the relabelling, checked (and named) before anything is built.
-        self.config = TRLSDConfig(
-            reward_head=reward_head,
-            kappa=kappa,
-            sigma=sigma,
-            similarity=similarity,
-            feature_map=feature_map,
-            rbf_per_dim=rbf_per_dim,
-            rbf_sigma=rbf_sigma,
-            rbf_overlap=rbf_overlap,
-            max_features=max_features,
-            fourier_features=fourier_features,
-            state_bounds=state_bounds,
-            reward_head_kwargs=reward_head_kwargs or {},
-            reward_timing=reward_timing,
-        )
+        self.config = TRLSDConfig.of(locals())
         super().__init__(
             buffer_size,
             observation_space,
@@ -187,9 +173,13 @@ class RelabellingReplayBuffer(SharedDynamicsReplayBuffer):
         builder = self.config.builder(observation_space, int(action_space.n), linear_q=False, seed=seed)
         self.reward_timing = builder.reward_timing
         self.features = builder.features
-        self.reward_heads = [
-            builder.new_reward_head(task, reward_fn=reward_fn) for task in range(self.n_tasks)
-        ]
+        # One learner per task: its head learns the task's online rewards and relabels the rows served to it.
+        self.learners = [builder.new_task_learner(task, reward_fn=reward_fn) for task in range(self.n_tasks)]
+
+    @property
+    def reward_heads(self) -> list[RewardHead]:
+        """Each task's reward head, learnt from the task's online rewards."""
+        return [learner.head for learner in self.learners]
 
     # ----------------------------------------------------------------- storing
     def add(
@@ -205,10 +195,10 @@ class RelabellingReplayBuffer(SharedDynamicsReplayBuffer):
         super().add(obs, next_obs, action, reward, done, infos)
         states, tasks = split_observation(obs, self.obs_shape[0])
         next_states, _ = split_observation(next_obs, self.obs_shape[0])
-        inputs = rewarded_inputs(states, np.asarray(action).reshape(-1), next_states, self.reward_timing)
-        rewards = np.asarray(reward, dtype=np.float64).reshape(-1)
+        actions, rewards = np.asarray(action).reshape(-1), np.asarray(reward, dtype=np.float64).reshape(-1)
         for task in np.unique(tasks):
-            self.reward_heads[task].update(inputs[tasks == task], rewards[tasks == task])
+            rows = tasks == task
+            self.learners[task].learn(states[rows], actions[rows], next_states[rows], rewards[rows])
 
     def load_transitions(self, transitions: Transitions) -> None:
         """
@@ -233,7 +223,7 @@ class RelabellingReplayBuffer(SharedDynamicsReplayBuffer):
     def online_tasks(self) -> np.ndarray:
         """The tasks whose head has learnt from online rewards: those a source row may be served to, (m,)."""
         return np.array(
-            [task for task, head in enumerate(self.reward_heads) if head.n_samples > 0], dtype=int
+            [task for task, learner in enumerate(self.learners) if learner.head.n_samples > 0], dtype=int
         )
 
     def _get_samples(  # type: ignore[override]
@@ -259,8 +249,8 @@ class RelabellingReplayBuffer(SharedDynamicsReplayBuffer):
         relabelled = np.ones_like(source) if self.relabel_online_rows else source
         for task in np.unique(tasks[relabelled]):
             rows = relabelled & (tasks == task)
-            rewarded = rewarded_inputs(states[rows], actions[rows], next_states[rows], self.reward_timing)
-            rewards[rows] = self.reward_heads[task].optimistic(rewarded)  # eq. 5: R~ = R^ + CI
+            # psi, eq. 5: R~ = R^ + CI
+            rewards[rows] = self.learners[task].relabel(states[rows], actions[rows, 0], next_states[rows])
         # Only terminations stop the bootstrap, not the resets after a truncation.
         dones = self.dones[batch_inds, env_indices] * (1 - self.timeouts[batch_inds, env_indices])
         rewards_column = self.to_torch(self._normalize_reward(rewards.reshape(-1, 1), env))

@@ -5,20 +5,24 @@ uncertainty as of the task's last refit (the trigger of section 3 compares the c
 refit count, whether a refit is due, and the relabelling of the shared buffer for the task, psi: R~_tau at
 the rewarded input of every stored transition, kept up to date with only the rows and samples added since
 the last refit. The Q-function itself (and its warm start, the current parameters) is the policy's; the
-buffer's rows as the Q-function's fit consumes them are shared by all tasks (``fit_rows.py``).
+buffer's rows, as the engine reads them once per refit, are shared by all tasks (``engine.RunRows``).
+
+Feeding the head its rewards (``learn``) and relabelling rows for the task (psi: ``relabel``, or
+``relabelled_rewards`` over every row, kept up to date) are written here once, for ``TRLSD``'s engine and for
+the ``RelabellingReplayBuffer`` alike.
 """
 
 from __future__ import annotations
 
+from collections import deque
 from typing import Any
 
 import numpy as np
 
-from sb3_trlsd.buffers import BufferCursor, SharedDynamicsReplayBuffer
 from sb3_trlsd.reward_heads import RewardHead, RewardTracker
 from sb3_trlsd.reward_timing import REWARD_TIMINGS, rewarded_inputs
 
-__all__ = ["FIRST_FIT_RULES", "OPTIMISM_RULES", "TaskLearner"]
+__all__ = ["FIRST_FIT_RULES", "OPTIMISM_RULES", "TRAIL_LENGTH", "TaskLearner"]
 
 # When a task's Q-function is first fitted (the paper does not say): before its first action, on R~ of no
 # sample (the optimism of an empty head); or once its first sample (and reward) is in, acting before that
@@ -30,6 +34,7 @@ FIRST_FIT_RULES = ("first_step", "first_sample")
 # the buffer's rows only: with none but the task's own, a bonus or a draw values the rows it visited against
 # unvisited ones left at 0, which keeps the greedy policy among the visited.
 OPTIMISM_RULES = ("always", "with_source")
+TRAIL_LENGTH = 50  # the task's latest online states a learner keeps (its picture's trajectory)
 
 
 class TaskLearner:
@@ -88,17 +93,23 @@ class TaskLearner:
         self.samples_at_refit = 0
         self.uncertainty_at_refit: Any = None  # head.snapshot() at the last refit; None before the first
         self.rows_at_refit = 0  # rows of the shared buffer at the last refit
-        # Derived from the head and the buffer, rebuilt after loading: not saved.
+        # The latest online start states, each with whether its trajectory ended there.
+        self.trail: deque[tuple[np.ndarray, bool]] = deque(maxlen=TRAIL_LENGTH)
+        # Derived from the head and the run's rows, rebuilt after loading: not saved.
         self._relabelling: RewardTracker | None = None
-        self._cursor = BufferCursor()
+        self._generation = 0  # of the run's rows the relabelling tracks
 
     def __repr__(self) -> str:
         return f"TaskLearner(task={self.task}, refits={self.refits}, due={self.due}, head={self.head!r})"
 
     def __getstate__(self) -> dict[str, Any]:
         state = self.__dict__.copy()
-        state["_relabelling"], state["_cursor"] = None, BufferCursor()
+        state["_relabelling"], state["_generation"] = None, 0
         return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        self.__dict__.setdefault("trail", deque(maxlen=TRAIL_LENGTH))
 
     @property
     def fitted(self) -> bool:
@@ -111,7 +122,13 @@ class TaskLearner:
         return not self.fitted and self.first_fit == "first_step"
 
     def observe(
-        self, state: np.ndarray, action: int, next_state: np.ndarray, reward: float, n_rows: int
+        self,
+        state: np.ndarray,
+        action: int,
+        next_state: np.ndarray,
+        reward: float,
+        n_rows: int,
+        ended: bool = False,
     ) -> None:
         """
         Add one online sample of the task to its reward head (the reward at the transition's start state,
@@ -130,13 +147,15 @@ class TaskLearner:
         :param next_state: the state it arrived at (d,)
         :param reward: the reward observed for it
         :param n_rows: the rows of the shared buffer now
+        :param ended: the trajectory ended with it (kept with the task's ``trail``)
         """
-        rewarded = self.inputs(
+        rewarded = self.learn(
             np.asarray(state, dtype=np.float64).reshape(1, -1),
             np.array([action]),
             np.asarray(next_state, dtype=np.float64).reshape(1, -1),
+            np.array([reward], dtype=np.float64),
         )
-        self.head.update(rewarded, np.array([reward], dtype=np.float64))
+        self.trail.append((np.asarray(state, dtype=np.float64).copy(), bool(ended)))
         self.samples += 1
         if not self.fitted:
             self.due = self.due or self.first_fit == "first_sample"
@@ -163,26 +182,78 @@ class TaskLearner:
         """
         return rewarded_inputs(states, actions, next_states, self.reward_timing)
 
-    def relabelled_rewards(self, buffer: SharedDynamicsReplayBuffer) -> np.ndarray:
+    def learn(
+        self, states: np.ndarray, actions: np.ndarray, next_states: np.ndarray, rewards: np.ndarray
+    ) -> np.ndarray:
         """
-        R~_tau at the rewarded input (``reward_timing``) of every transition of the buffer, oldest first (Psi
-        of section 2); between two calls only the new rows and the head's new samples are folded in. Under
-        ``optimism="with_source"``, R^_tau while every row of the buffer is one of the task's own samples.
+        Teach the task's head the rewards of transitions of the task, at their rewarded inputs (``inputs``).
 
-        :param buffer: the shared buffer
+        :param states: start states (n, d)
+        :param actions: (n,)
+        :param next_states: (n, d)
+        :param rewards: the rewards observed for them (n,)
+        :return: the rewarded inputs, (n, p)
+        """
+        rewarded = self.inputs(states, actions, next_states)
+        self.head.update(rewarded, np.asarray(rewards, dtype=np.float64))
+        return rewarded
+
+    def relabel(self, states: np.ndarray, actions: np.ndarray, next_states: np.ndarray) -> np.ndarray:
+        """
+        psi of section 2 on rows the task did not collect: R~_tau = R^_tau + CI_tau (eq. 5) at their rewarded
+        inputs, the head as it is now.
+
+        :param states: start states (n, d)
+        :param actions: (n,)
+        :param next_states: (n, d)
         :return: rewards (n,)
         """
-        if self._relabelling is None:
-            self._cursor = BufferCursor()
-        rows, restart = buffer.read_new(self._cursor)
-        states = self.inputs(rows.states, rows.actions, rows.next_states)
-        if restart or self._relabelling is None:
-            self._relabelling = self.head.tracker(states)
-        else:
-            self._relabelling.extend(states)
+        return self.head.optimistic(self.inputs(states, actions, next_states))
+
+    def relabelled_rewards(self, inputs: np.ndarray, generation: int) -> np.ndarray:
+        """
+        R~_tau at every row of the run's buffer, oldest first (psi of section 2, over the whole set); between
+        two calls only the new rows and the head's new samples are folded in. Under
+        ``optimism="with_source"``, R^_tau while every row of the buffer is one of the task's own samples.
+
+        :param inputs: the rewarded inputs of the run's rows, (n, p), a view that only grows between calls of
+            one ``generation``
+        :param generation: changes when the rows start over (the buffer lost rows)
+        :return: rewards (n,)
+        """
+        if self._relabelling is None or generation != self._generation:
+            self._relabelling = self.head.tracker(inputs)
+            self._generation = generation
+        elif len(inputs) > self._relabelling.n_states:
+            self._relabelling.extend(inputs[self._relabelling.n_states :])
         if self.optimism == "with_source" and self._relabelling.n_states <= self.samples:
             return self._relabelling.estimate()
         return self._relabelling.optimistic()
+
+    def bonus_mean(self, rewards: np.ndarray) -> float:
+        """
+        The optimism a refit applied: the mean of R~ - R^ over the rows it relabelled (its ``rewards``, those
+        of the last ``relabelled_rewards``), from what the relabelling keeps (no row is read again).
+
+        :param rewards: the rewards of the last ``relabelled_rewards``
+        """
+        if self._relabelling is None or not len(rewards):
+            return 0.0
+        return float(np.mean(rewards - self._relabelling.estimate()))
+
+    def recent_states(self) -> np.ndarray:
+        """
+        The task's latest online start states (its ``trail``), with a row of NaN after each end of a
+        trajectory, where a drawn line must break.
+
+        :return: (t, d)
+        """
+        rows = []
+        for state, ended in self.trail:
+            rows.append(state)
+            if ended:
+                rows.append(np.full(len(state), np.nan))
+        return np.array(rows)
 
     def refitted(self, n_rows: int) -> None:
         """

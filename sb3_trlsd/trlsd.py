@@ -18,28 +18,42 @@ import gymnasium as gym
 import numpy as np
 import torch as th
 from gymnasium import spaces
+from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.noise import ActionNoise
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule, TrainFreq
 
+from sb3_trlsd.action_choice import explore_rng, tie_rng
 from sb3_trlsd.atomic_files import save_file
 from sb3_trlsd.buffers import SharedDynamicsReplayBuffer
-from sb3_trlsd.callbacks import TaskView, has_tensorboard, log_hyperparameters, log_task_picture
-from sb3_trlsd.config import LearnerBuilder, TRLSDConfig, check_algorithm_settings, check_discount
+from sb3_trlsd.config import LearnerBuilder, TRLSDConfig, check_algorithm_settings
 from sb3_trlsd.data import Transitions, as_flags
-from sb3_trlsd.engine import Engine, Run, explore_rng, tie_rng
+from sb3_trlsd.engine import Engine, Run, RunRows
 from sb3_trlsd.feature_maps import FeatureMap
 from sb3_trlsd.fqi import FQIResult
-from sb3_trlsd.observations import StateBoxMonitor, check_action_space, read_observation, state_space_of
+from sb3_trlsd.observations import (
+    StateBoxMonitor,
+    check_action_space,
+    read_observation,
+    split_observation,
+    state_space_of,
+)
 from sb3_trlsd.persistence import BUFFER_ROWS, check_model_zip, empty_rows, read_replay_buffer
 from sb3_trlsd.policies import LinearPolicy, MlpPolicy, TaskQPolicy
 from sb3_trlsd.q_functions import PolicyQFunctions
-from sb3_trlsd.reward_heads import KnownRewardHead, RewardFn, RewardHead
-from sb3_trlsd.reward_timing import staying_inputs
+from sb3_trlsd.reward_heads import KnownRewardHead, RewardFn, RewardHead, env_reward_fn
 from sb3_trlsd.source_data import check_source_transitions, source_transitions_of
 from sb3_trlsd.task_learner import TaskLearner
+from sb3_trlsd.training_log import (
+    log_hyperparameters,
+    log_task_picture,
+    picture_due,
+    record_refit,
+    record_step,
+    task_view,
+)
 
 __all__ = ["TRLSD", "UNFITTED_TASK"]
 
@@ -48,18 +62,13 @@ UNFITTED_TASK = (
     "task {task} has never been fitted: its Q-function is 0 and predict returns action 0 for every state; "
     "learn on it first, or call model.update_policy({task})"
 )
-# Settings of the features Phi that belong to TRLSD (which shares Phi between the policy and the heads).
-FEATURE_SETTINGS = ("features", "rbf_per_dim", "rbf_sigma", "rbf_overlap", "max_features", "state_bounds")
 
 
-class _SingleTaskReward:
-    """A Box-observation env's ``expected_reward(states)`` seen as ``reward_fn(states, task)`` (one task)."""
+class _EngineStep:
+    """Where SB3's ``_store_transition`` writes a step of the envs, in place of a replay buffer's ``add``."""
 
-    def __init__(self, expected_reward: Callable[[np.ndarray], np.ndarray]):
-        self.expected_reward = expected_reward
-
-    def __call__(self, states: np.ndarray, task: int) -> np.ndarray:
-        return self.expected_reward(states)
+    def __init__(self, add: Callable[[Any, Any, np.ndarray, np.ndarray, np.ndarray, list[dict]], None]):
+        self.add = add
 
 
 class TRLSD(OffPolicyAlgorithm):
@@ -69,118 +78,51 @@ class TRLSD(OffPolicyAlgorithm):
     Paper: Laroche & Barlier, "Transfer Reinforcement Learning with Shared Dynamics", AAAI 2017.
     Every transition of every task goes to one shared buffer; for a target task, the buffer's rewards are
     replaced by an optimistic proxy R~ = R^ + CI learnt from that task's own samples (section 3), and its Q
-    is refitted on that relabelled set by Fitted-Q Iteration (Algorithm 1): at its first step (or after its
-    first sample, ``first_fit``), then whenever the CI at an encountered state has been divided by
-    ``update_ratio``. The settings of the learning are a ``TRLSDConfig`` (``model.config``); each task's
-    learning state is a ``TaskLearner`` (``task_learner``); the online loop is an ``Engine`` of one run that
-    SB3's rollout drives (all ``n_envs`` envs feed the one shared buffer and the one learner per task), and
-    so do ``act`` and ``add_online_transition`` from a loop of one's own. ``save``/``load`` keep the buffer's
-    rows, so that a loaded model goes on learning as an uninterrupted one would.
+    is refitted on that relabelled set by Fitted-Q Iteration (Algorithm 1): at its first step, then whenever
+    the CI at an encountered state has been divided by ``update_ratio``. The learning's settings are a
+    ``TRLSDConfig`` (``model.config``), which says what each one means; each task's learning state is a
+    ``TaskLearner`` (``task_learner``); the online loop is an ``Engine`` of one run, which SB3's rollout
+    drives (all ``n_envs`` envs feed the one shared buffer) and so do ``act`` and ``add_online_transition``
+    from a loop of one's own. ``save``/``load`` keep the buffer's rows: a loaded model goes on learning as an
+    uninterrupted one would.
 
-    Defaults are meant for any family of tasks, not one env's units: ``update_ratio=2`` and lambda = 1 for the
-    reward regression are the paper's (section 4); the features (``"auto"``), Fitted-Q's stopping rule
-    (``"targets"``), ``refit_growth=0.1``, the reward timing, the exploration schedule and the reward head
-    (posterior draws over a source) were chosen on the tuning weights of the MO-Gymnasium suite
-    (``benchmarks/tune_suite.py``, see the docs' benchmarks page). The paper's own settings (kappa 0.1, its
-    5x5 RBFs of width 0.2, refits as soon as the trigger fires, the greedy policy throughout) are what
-    ``sb3-trlsd reproduce`` and the maze's zoo configs give. The paper does not give the discount factor:
-    ``gamma=0.9`` makes the maze's reward cell worth reaching from anywhere (its effective horizon of ~10
-    steps covers the longest path around the walls) and keeps FQI short.
+    The defaults are meant for any family of tasks, not one env's units (docs: TRLSD and its parameters, and
+    the benchmarks page for how they were chosen); ``update_ratio=2`` and lambda = 1 of the reward
+    regression are the paper's. The paper's own settings are what ``sb3-trlsd reproduce`` and the maze's Zoo
+    configs give.
+    The paper does not give the discount factor: ``gamma=0.9`` makes the maze's reward cell worth reaching
+    from anywhere and keeps Fitted-Q short.
 
     :param policy: ``"LinearPolicy"`` (the paper's linear Q on RBF features) or ``"MlpPolicy"``
     :param env: the environment (Gymnasium env, VecEnv of any number of envs, or registered id); observations
         are a state Box, or a ``{"state": Box, "task": Discrete}`` Dict for several tasks
     :param gamma: discount factor
-    :param reward_head: ``"ridge"`` (eq. 9), ``"tabular"`` (per-cell means, eq. 10, on a grid over the state
-        box or a ``cell_fn``), ``"corners"`` (only the grid's corner cells pay), ``"known"`` (CI = 0); other
-        confidence bounds (``sb3_trlsd.reward_heads``): ``"ridge_posterior"`` (OFUL / LinUCB's kappa
-        sqrt(phi^T A^-1 phi) on the shared features, refitted when det A has grown by ``update_ratio``),
-        ``"thompson"`` (the default: posterior draws of the ridge weights of scale kappa, one per refit,
-        seeded by ``seed`` and the task) or ``"bernstein"`` (UCB-V's kernel-weighted empirical-Bernstein
-        bound, eq. 6 of width ``sigma``); or a ``RewardHead`` copied for each task
-    :param kappa: optimism (eq. 9, 10), in the env's reward units, and for ``"thompson"`` the posterior
-        scale, by default in units of the largest absolute reward seen (its ``kappa_scale="observed"``). 0 is
-        the non-optimistic method of Atkeson & Santamaria; the paper's continuous setting uses 0.1 on rewards
-        in [0, 1]. None: the head's (``sb3_trlsd.config.head_defaults``), 0.01 for ``"thompson"`` and 0 for
-        the others
-    :param sigma: width of the similarity in W (eq. 8): for eq. 6 a fraction of the state box, one or one per
-        dimension (None: ``default_kernel_width(d)``, 0.04 in 2-D: the paper's 0.2 on the maze); for eq. 7
-        a distance between feature vectors (None: 0.2)
-    :param similarity: ``"state"`` (eq. 6, on states) or ``"features"`` (eq. 7, on RBF features)
+    :param reward_head: the reward head R~ = R^ + CI (default: posterior draws, ``"thompson"``)
+    :param kappa: optimism of the CI (eq. 9, 10); None: the head's
+    :param sigma: width of the similarity in W (eq. 8)
+    :param similarity: ``"state"`` (eq. 6) or ``"features"`` (eq. 7)
     :param update_ratio: refit a task when the CI at an encountered state has been divided by this (> 1)
-    :param first_fit: when a task's Q is first fitted (the paper does not say): ``"first_step"``, before its
-        first action, on the optimism of a head with no sample; ``"first_sample"``, once its first sample is
-        in (its first action is the unfitted Q's argmax)
-    :param refit_growth: once the trigger has fired, a task's refit waits until its samples have grown by this
-        fraction since its last refit: refits are then at most ~1 / refit_growth + ln(n) / ln(1 +
-        refit_growth) over n samples (rarely-switching optimism's lazy updates), so their cost per step
-        falls as a run goes on; 0 refits as soon as the trigger fires (the paper's Algorithm 1)
-    :param optimism: where the shared buffer is relabelled with the optimistic R~ rather than the estimate
-        R^: ``"always"`` (the paper), or ``"with_source"``, once the buffer holds rows the task did not
-        collect itself (a source, other tasks' rows); None: the head's, ``"with_source"`` for
-        ``"thompson"`` and ``"always"`` for the others. Fitted-Q sees the buffer's rows only, so optimism
-        reaches the Q-function through the rows it relabels: learning from scratch, a bonus or a posterior
-        draw values the rows visited against unvisited ones left at 0 and keeps the greedy policy among the
-        visited, where R^ (0 everywhere before a reward) leaves it to the tie-break and exploration
-    :param tie_break: the action taken among equal Q-values while learning (``learn``, ``act``, ``predict``
-        with ``deterministic=False``): ``"random"``, one of them drawn with a generator seeded by ``seed``
-        (a Q that is 0 everywhere, as before any reward is seen with kappa = 0, then explores at random
-        instead of repeating action 0), or ``"first"`` (the paper's reproduction). ``predict`` with
-        ``deterministic=True`` takes the first
-    :param exploration_initial_eps: epsilon-greedy while learning (``learn``, ``act``; ``predict`` stays
-        greedy), per task: the probability of a uniformly random action at a task's first online step. A
-        greedy policy on a Q that no reward supports yet is deterministic all the same and can walk into a
-        wall and stay there; random steps spread a new task's first samples instead. None: 1 for the heads
-        that learn the reward, 0 for a head with nothing to learn (``"known"``, or a ``RewardHead`` without
-        uncertainty), which acts greedily from its first step (``sb3_trlsd.config.head_defaults``); a value
-        given wins. 0 with ``exploration_final_eps=0`` is the paper's greedy policy (its reproduction)
-    :param exploration_final_eps: the probability once the task has ``exploration_steps`` online samples
-    :param exploration_steps: a task's online samples over which the probability falls linearly from
-        ``exploration_initial_eps`` to ``exploration_final_eps``. The schedule counts each task's own samples,
-        not the ``total_timesteps`` of ``learn`` (SB3's DQN's ``exploration_fraction``): TRLSD meets new
-        tasks as it goes, and ``act`` knows no budget
-    :param fqi_max_iterations: cap on Fitted-Q iterations per refit (None: the policy's own default, 500
-        linear and 200 MLP, and under ``fqi_stop="targets"`` at most ``sb3_trlsd.fqi.targets_rule_cap(gamma,
-        fqi_tol)``, three times what a gamma-contraction needs: 198 at gamma 0.9)
-    :param fqi_tol: Fitted-Q's relative stopping tolerance (see ``fqi_stop``; None: 1e-3 on the targets,
-        1e-4 on theta)
-    :param fqi_stop: Fitted-Q's stopping rule: ``"targets"``, once the Bellman targets move by less than
-        ``fqi_tol`` of the return scale (what the next fit can still change on the data); ``"theta"``, once
-        the parameters move by less than ``fqi_tol`` of their scale (the paper's reproduction: with float32
-        features, directions of theta the data does not see may never settle). A refit that reaches
-        ``fqi_max_iterations`` first warns (``sb3_trlsd.fqi.FQICapWarning``)
-    :param feature_map: Phi, shared by the linear policy and the feature heads: ``"auto"`` (on a Box of
-        integers with at most 125 points, ``"lattice"``; else a grid of RBFs 1.5 spacings wide, counts from
-        the box under ``max_features``, while every dimension gets at least 3 centres; else a row of RBFs per
-        dimension, added), ``"lattice"`` (one RBF per integer point of the box, half a spacing wide: a
-        grid-world's cells), ``"paper"`` (eq. 11: the grid up to 125 centres, a fifth of the spacing wide,
-        else Fourier features), ``"rbf"``, ``"additive"``, ``"fourier"``, or a ``FeatureMap`` (see
-        ``sb3_trlsd.feature_choice.make_feature_map``)
-    :param rbf_per_dim: RBF centres per state dimension: one integer, one per dimension, or ``"cube"`` (the
-        same count in every dimension) / ``"box"`` (counts proportional to the box's sides, in its units)
-        under ``max_features``; None: the feature map's default (``"cube"``; 5 for ``"paper"``)
-    :param rbf_sigma: width of the features, a fraction of the state box (one, or one per dimension); None:
-        ``rbf_overlap`` spacings of the centres, ``default_kernel_width(d)`` for Fourier features
-    :param rbf_overlap: width of the RBFs in spacings of their centres (None: 1.5, the paper's 0.2 for
-        ``"paper"``); not with ``rbf_sigma``
-    :param max_features: the feature map's budget (None: 64, 125 for ``"paper"``)
-    :param fourier_features: the number of Fourier features (None: 50 per state dimension)
+    :param first_fit: when a task's Q is first fitted: ``"first_step"`` or ``"first_sample"``
+    :param refit_growth: once the trigger fired, a refit waits for the task's samples to grow by this fraction
+    :param optimism: where the buffer is relabelled with R~ rather than R^; None: the head's
+    :param tie_break: the action among equal Q-values while learning: ``"random"`` or ``"first"``
+    :param exploration_initial_eps: epsilon-greedy at a task's first online step; None: the head's
+    :param exploration_final_eps: epsilon once a task has ``exploration_steps`` online samples
+    :param exploration_steps: a task's online samples over which epsilon falls linearly
+    :param fqi_max_iterations: cap on Fitted-Q iterations per refit (None: the policy's, and the rule's)
+    :param fqi_tol: Fitted-Q's relative stopping tolerance (None: the rule's)
+    :param fqi_stop: Fitted-Q's stopping rule: ``"targets"`` or ``"theta"``
+    :param feature_map: Phi, shared by the linear Q and the feature heads (default ``"auto"``)
+    :param rbf_per_dim: RBF centres per state dimension
+    :param rbf_sigma: width of the features, a fraction of the state box
+    :param rbf_overlap: width of the RBFs in spacings of their centres
+    :param max_features: the feature map's budget
+    :param fourier_features: the number of Fourier features
     :param state_bounds: ``(low, high)`` of the states for an unbounded Box (None: the Box's, finite)
     :param reward_fn: ``reward_fn(states (n, d), task) -> (n,)``, the expected reward for the ``"known"``
         head; by default the env's ``expected_reward``. Not saved: give it again to ``load``
-    :param reward_head_kwargs: extra arguments of the named reward heads (e.g. ``w_floor``, ``r_max``;
-        ``ridge`` of the linear-posterior heads, ``seed`` and ``kappa_scale`` of ``"thompson"``
-        (``"observed"``, its default here: kappa in units of the largest absolute reward seen; ``"reward"``:
-        in the env's reward units), ``reward_range`` of
-        ``"bernstein"``); one the head does not take is refused (``reward_heads.head_arguments``)
-    :param reward_timing: what of a transition its reward belongs to, which the reward heads learn and
-        relabel at: ``"start_state"`` (the paper's R_tau(s)), ``"next_state"`` (the state it arrives at:
-        e.g. a goal paid on arrival), ``"transition"`` (the pair (s, s'), whose features are Phi(s) and
-        Phi(s') side by side: a reward paid the first time a place is reached, say), ``"step"`` ((s, a, s'),
-        the action's one-hot code between them: a cost per action too) or ``"auto"`` (the env's
-        ``metadata["reward_timing"]`` where it declares one, as this package's envs do, else ``"step"``,
-        Gymnasium's r(s, a, s'), for the heads that can learn it and ``"next_state"`` for the ``"known"``
-        and tabular heads)
+    :param reward_head_kwargs: extra arguments of the named reward heads
+    :param reward_timing: what of a transition its reward belongs to (``"auto"``: the env's, else the step)
     :param source_transitions: source set loaded (rewards discarded) at the first ``learn``: a number of
         random transitions (the paper's 25,000) from ``source_env``, or the path of a ``Transitions`` .npz
     :param source_seed: seed of the collection of ``source_transitions`` (None: ``seed``)
@@ -266,56 +208,21 @@ class TRLSD(OffPolicyAlgorithm):
         _init_setup_model: bool = True,
     ):
         # The settings are checked first: a bad one is named before any env is built.
-        self.config = TRLSDConfig(
-            reward_head=reward_head,
-            kappa=kappa,
-            sigma=sigma,
-            similarity=similarity,
-            update_ratio=update_ratio,
-            first_fit=first_fit,
-            refit_growth=refit_growth,
-            optimism=optimism,
-            tie_break=tie_break,
-            exploration_initial_eps=exploration_initial_eps,
-            exploration_final_eps=exploration_final_eps,
-            exploration_steps=exploration_steps,
-            fqi_max_iterations=fqi_max_iterations,
-            fqi_tol=fqi_tol,
-            fqi_stop=fqi_stop,
-            feature_map=feature_map,
-            rbf_per_dim=rbf_per_dim,
-            rbf_sigma=rbf_sigma,
-            rbf_overlap=rbf_overlap,
-            max_features=max_features,
-            fourier_features=fourier_features,
-            state_bounds=state_bounds,
-            reward_head_kwargs=reward_head_kwargs or {},
-            reward_timing=reward_timing,
-        )
+        self.config = TRLSDConfig.of(locals())
         check_source_transitions(source_transitions)
-        check_algorithm_settings(buffer_size, learning_starts, train_freq, seed, source_transitions)
+        check_algorithm_settings(
+            gamma, buffer_size, learning_starts, train_freq, seed, source_transitions, log_picture_every,
+            policy_kwargs,
+        )  # fmt: skip
         if env is None and _init_setup_model:
             raise ValueError(
                 "env must be an env, a VecEnv or a registered env id to build the model, got None (None is "
                 "for TRLSD.load, which makes the model with _init_setup_model=False)"
             )
-        if isinstance(log_picture_every, bool) or not (
-            isinstance(log_picture_every, (int, np.integer)) and log_picture_every >= 0
-        ):
-            raise ValueError(f"log_picture_every must be an integer >= 0, got {log_picture_every!r}")
-        shadowed = sorted(set(policy_kwargs or {}) & set(FEATURE_SETTINGS))
-        if shadowed:
-            raise ValueError(
-                f"policy_kwargs may not set {shadowed}: the features are TRLSD's, shared by the policy and "
-                "the reward heads; give feature_map, rbf_per_dim, rbf_sigma or state_bounds to TRLSD(...)"
-            )
-        check_discount(gamma)
         super().__init__(
             # Resolved here: SB3 would otherwise ask for "MultiInputPolicy" on Dict observations.
             policy=_policy_class(policy, self.policy_aliases),
-            # None when ``load`` makes the model, as for SB3's own algorithms (OffPolicyAlgorithm's annotation
-            # leaves None out; BaseAlgorithm takes it)
-            env=env,  # type: ignore[arg-type]
+            env=env,  # type: ignore[arg-type]  # None when load makes the model, as for SB3's algorithms
             learning_rate=learning_rate,
             buffer_size=buffer_size,
             learning_starts=learning_starts,
@@ -324,8 +231,7 @@ class TRLSD(OffPolicyAlgorithm):
             gradient_steps=gradient_steps,
             replay_buffer_class=replay_buffer_class,
             replay_buffer_kwargs=replay_buffer_kwargs,
-            # A copy: the features are added to it, and the caller's dict may build another model.
-            policy_kwargs=dict(policy_kwargs or {}),
+            policy_kwargs=dict(policy_kwargs or {}),  # a copy: the features are added to it
             stats_window_size=stats_window_size,
             tensorboard_log=tensorboard_log,
             verbose=verbose,
@@ -370,8 +276,7 @@ class TRLSD(OffPolicyAlgorithm):
             seed=self.seed,
             env_reward_timing=self.reward_timing,
         )
-        # One feature map Phi, for the linear policy and the feature heads.
-        self.features = self._builder.features
+        self.features = self._builder.features  # one Phi, for the linear policy and the feature heads
         if linear_q:
             self.policy_kwargs["features"] = self.features
         elif issubclass(self.policy_class, MlpPolicy):
@@ -380,17 +285,18 @@ class TRLSD(OffPolicyAlgorithm):
         self._buffer_rows = empty_rows()  # the buffer's rows, during save and load only
         self._warned_unfitted: set[int] = set()
         self._state_box = StateBoxMonitor(self._builder.low, self._builder.high)
-        self.engine = self._new_engine()
-
-    def _new_engine(self) -> Engine:
-        """The engine of this model's one run: its shared buffer, task learners and policy."""
         if not hasattr(self, "_ties"):  # a loaded model draws on from where it was saved
             self._ties = tie_rng(self.seed)
-        if not hasattr(self, "_explore"):
             self._explore = explore_rng(self.seed)
-        ties = self._ties if self.config.tie_break == "random" else None
-        return Engine(
-            [Run(self.replay_buffer, self.task_learners, ties=ties, explore=self._explore)],
+        run = Run(
+            self.replay_buffer,
+            RunRows(self._builder.reward_timing),
+            self.task_learners,
+            ties=self._ties if self.config.tie_break == "random" else None,
+            explore=self._explore,
+        )
+        self.engine = Engine(
+            [run],
             PolicyQFunctions(self.policy),
             lambda run, task: self.new_task_learner(task),
             gamma=self.gamma,
@@ -402,16 +308,6 @@ class TRLSD(OffPolicyAlgorithm):
         )
 
     # ------------------------------------------------------------- task learners
-    def _known_reward_fn(self) -> RewardFn | None:
-        """The model's ``reward_fn``, else the env's ``expected_reward`` (None without either)."""
-        if self.reward_fn is not None:
-            return self.reward_fn
-        env = self.env
-        if env is None or not env.has_attr("expected_reward"):
-            return None
-        method = env.get_attr("expected_reward", indices=0)[0]
-        return method if isinstance(self.observation_space, spaces.Dict) else _SingleTaskReward(method)
-
     def new_task_learner(self, task: int, seed: int | None = None) -> TaskLearner:
         """
         A learning state of ``task`` with no samples, as this model's settings make it: for runs driven
@@ -441,6 +337,11 @@ class TRLSD(OffPolicyAlgorithm):
         """The refits of every task seen so far (its first fit included)."""
         return {task: learner.refits for task, learner in self.task_learners.items()}
 
+    def _known_reward_fn(self) -> RewardFn | None:
+        """The model's ``reward_fn``, else the env's ``expected_reward`` (None without either)."""
+        several_tasks = isinstance(self.observation_space, spaces.Dict)
+        return self.reward_fn or env_reward_fn(self.env, several_tasks)
+
     # --------------------------------------------------------------- transitions
     def load_transitions(self, data: Transitions | str | os.PathLike, keep_rewards: bool = False) -> None:
         """
@@ -452,27 +353,14 @@ class TRLSD(OffPolicyAlgorithm):
         :raises ValueError: when they do not fit in the buffer next to its rows (``buffer_size``)
         """
         transitions = data if isinstance(data, Transitions) else Transitions.load(data)
-        self.replay_buffer.check_room(len(transitions))
         self._state_box.check(np.concatenate([transitions.states, transitions.next_states]), stacklevel=2)
-        self.replay_buffer.add_transitions(transitions, keep_rewards=keep_rewards)
-        if keep_rewards:
-            for task in np.unique(transitions.tasks):
-                rows = transitions.tasks == task
-                learner = self.task_learner(task)
-                inputs = learner.inputs(
-                    transitions.states[rows], transitions.actions[rows], transitions.next_states[rows]
-                )
-                learner.head.update(inputs, transitions.rewards[rows])
-        # New dynamics data: every fitted task is refitted at the next training round.
-        for learner in self.task_learners.values():
-            learner.due = learner.due or learner.fitted
+        self.engine.load(0, transitions, keep_rewards)
 
     # ------------------------------------------------------ the online loop (SB3)
     def _sample_action(
         self, learning_starts: int, action_noise: ActionNoise | None = None, n_envs: int = 1
     ) -> tuple[np.ndarray, np.ndarray]:
-        # Before learning_starts, SB3's uniformly random actions; then the engine's: a task's Q is fitted at
-        # its first step (unless ``first_fit`` waits), the greedy action, and the task's exploration.
+        # Before learning_starts, SB3's uniformly random actions; then the engine's.
         if self.num_timesteps < learning_starts or self._last_obs is None:
             return super()._sample_action(learning_starts, action_noise, n_envs)
         states, tasks = read_observation(self._last_obs, self.observation_space)
@@ -480,30 +368,19 @@ class TRLSD(OffPolicyAlgorithm):
         actions = self.engine.act(np.zeros(len(tasks), dtype=np.int64), states, tasks)
         return actions, actions
 
-    def _on_step(self) -> None:
-        """Feed the transitions just stored (one row per env) to the engine: their tasks' learners."""
-        self._observe_stored(self.n_envs)
-
-    def _observe_stored(self, n_rows: int) -> None:
-        """Feed the last ``n_rows`` rows of the shared buffer to the engine, as its one run's transitions."""
-        buffer = self.replay_buffer
-        rows = (buffer.pos - np.arange(n_rows, 0, -1)) % buffer.buffer_size
-        tasks = buffer.tasks[rows, 0]
-        timeouts = buffer.timeouts[rows, 0].astype(bool)
-        self._state_box.check(buffer.next_observations[rows, 0], stacklevel=4)
-        self.engine.observe(
-            np.zeros(n_rows, dtype=np.int64),
-            buffer.observations[rows, 0],
-            buffer.actions[rows, 0, 0],
-            buffer.rewards[rows, 0],
-            buffer.next_observations[rows, 0],
-            tasks,
-            buffer.dones[rows, 0].astype(bool) & ~timeouts,
-            timeouts,
-            store=False,
-        )
-        if getattr(self, "_logger", None) is not None:
-            self.logger.record("reward/target_samples", self.task_learner(tasks[-1]).head.n_samples)
+    def _store_transition(
+        self,
+        replay_buffer: ReplayBuffer,
+        buffer_action: np.ndarray,
+        new_obs: np.ndarray | dict[str, np.ndarray],
+        reward: np.ndarray,
+        dones: np.ndarray,
+        infos: list[dict[str, Any]],
+    ) -> None:
+        # SB3 makes the step's transitions (terminal observations, VecNormalize's originals) and hands them to
+        # the engine's step, which stores them in the shared buffer and feeds the task learners.
+        engine_step = _EngineStep(self._online_step)
+        super()._store_transition(engine_step, buffer_action, new_obs, reward, dones, infos)  # type: ignore[arg-type]
 
     def train(self, gradient_steps: int, batch_size: int) -> None:
         """
@@ -537,10 +414,10 @@ class TRLSD(OffPolicyAlgorithm):
         truncated: bool,
     ) -> None:
         """
-        Do with one online transition what ``learn`` does after an env step: store it in the shared buffer
-        (with the precision SB3 stores it), feed it to its task's learner, and refit the tasks whose trigger
-        fired. A transition with a non-finite value, a wrong shape or a task out of range raises a
-        ValueError and leaves the model as it was. See ``act``.
+        Do with one online transition what ``learn`` does after an env step: the engine's step (store it in
+        the shared buffer with the precision SB3 stores it, feed it to its task's learner), then refit the
+        tasks whose trigger fired. A transition with a non-finite value, a wrong shape or a task out of range
+        raises a ValueError and leaves the model as it was. See ``act``.
 
         :param obs: observation before the step (not batched)
         :param action: action taken
@@ -549,21 +426,41 @@ class TRLSD(OffPolicyAlgorithm):
         :param terminated: the step reached an absorbing state
         :param truncated: the trajectory was cut (no absorbing state: FQI bootstraps through it)
         """
-        terminated, truncated = (
-            bool(as_flags("terminated", terminated)),
-            bool(as_flags("truncated", truncated)),
-        )
-        self.replay_buffer.add(
-            obs,
-            next_obs,
-            np.array([[action]]),
-            np.array([reward], dtype=np.float64),
-            np.array([terminated or truncated]),
-            [{"TimeLimit.truncated": truncated and not terminated}],
+        ended, cut = bool(as_flags("terminated", terminated)), bool(as_flags("truncated", truncated))
+        info = {"TimeLimit.truncated": cut and not ended}
+        self._online_step(
+            obs, next_obs, np.array([action]), np.array([reward]), np.array([ended or cut]), [info]
         )
         self.num_timesteps += 1
-        self._observe_stored(1)
         self.engine.refit_due()
+
+    def _online_step(
+        self,
+        obs: dict[str, np.ndarray] | np.ndarray,
+        next_obs: dict[str, np.ndarray] | np.ndarray,
+        actions: np.ndarray,
+        rewards: np.ndarray,
+        dones: np.ndarray,
+        infos: list[dict[str, Any]],
+    ) -> None:
+        """A step of the envs (a row per env: SB3's ``add`` arguments) as the engine's step of the one run."""
+        states, tasks = read_observation(obs, self.observation_space)
+        # Its values are checked with the row's, by the buffer (a ValueError naming the next state).
+        next_states, _ = split_observation(next_obs, states.shape[1])
+        done = as_flags("done", np.asarray(dones).reshape(-1))
+        if len(done) != len(states) or len(infos) != len(states):
+            raise ValueError(
+                f"expected one done and one info per env ({len(states)}), got {len(done)}, {len(infos)}"
+            )
+        timeouts = np.array([bool(info.get("TimeLimit.truncated", False)) for info in infos])
+        truncated = done & timeouts if self.replay_buffer.handle_timeout_termination else np.zeros_like(done)
+        runs = np.zeros(len(states), dtype=np.int64)
+        actions, rewards = np.asarray(actions).reshape(-1), np.asarray(rewards).reshape(-1)
+        self.engine.step(runs, states, actions, rewards, next_states, tasks, done & ~truncated, truncated)
+        self._state_box.check(next_states, stacklevel=4)
+        if getattr(self, "_logger", None) is not None:
+            task = int(tasks[-1])
+            record_step(self.logger, self.task_learner(task), self.engine.exploration_rate(0, task))
 
     def update_policy(self, task: int) -> None:
         """
@@ -578,42 +475,14 @@ class TRLSD(OffPolicyAlgorithm):
         self.engine.refit([(0, int(task))])
 
     def _log_refit(self, run: int, learner: TaskLearner, result: FQIResult, rewards: np.ndarray) -> None:
-        """
-        What a refit writes to the logger (nothing outside ``learn``, before SB3 made one):
-        ``train/policy_updates``, ``train/fqi_iterations``, ``train/bellman_residual``, ``reward/ci_mean``
-        (the optimism applied, mean of R~ - R^ over the relabelled set, when the logger writes somewhere),
-        and the task's picture when one is due.
-        """
+        """A refit's scalars and, when one is due, the task's picture (nothing before SB3 made a logger)."""
         self._n_updates += 1
         if getattr(self, "_logger", None) is None:
             return
-        self.logger.record("train/policy_updates", sum(self.policy_updates.values()))
-        self.logger.record("train/fqi_iterations", result.iterations)
-        self.logger.record("train/bellman_residual", result.bellman_residual)
-        if len(rewards) and self.logger.output_formats:
-            stored = self.replay_buffer.transitions()
-            inputs = learner.inputs(stored.states, stored.actions, stored.next_states)
-            estimates = learner.head.estimate(inputs)
-            self.logger.record("reward/ci_mean", float(np.mean(rewards - estimates)))
-        every = self.log_picture_every
-        due = every and (learner.refits == 1 or learner.refits % every == 0)
-        if due and has_tensorboard(self.logger):
-            view = TaskView(
-                task=learner.task,
-                estimate=lambda states: self._staying(learner, learner.head.estimate, states),
-                bonus=lambda states: self._staying(learner, learner.head.bonus, states),
-                q_values=lambda states: self.policy.q_values(states, learner.task),
-                trajectory=self.replay_buffer.recent_states(learner.task, 50),
-            )
+        record_refit(self.logger, learner, result, rewards, sum(self.policy_updates.values()))
+        if picture_due(learner, self.log_picture_every):
+            view = task_view(learner, self.policy.q_values, self.policy.n_actions)
             log_task_picture(self.logger, self.env, view, self.num_timesteps)
-
-    def _staying(
-        self, learner: TaskLearner, values: Callable[[np.ndarray], np.ndarray], states: np.ndarray
-    ) -> np.ndarray:
-        """A head's ``values`` (estimate or bonus) of staying at ``states``, averaged over the actions."""
-        assert isinstance(self.action_space, spaces.Discrete)
-        inputs = staying_inputs(states, learner.reward_timing, int(self.action_space.n))
-        return np.mean([values(rows) for rows in inputs], axis=0)
 
     # ------------------------------------------------------------- save and load
     def _excluded_save_params(self) -> list[str]:
@@ -673,9 +542,8 @@ class TRLSD(OffPolicyAlgorithm):
         """
         check_model_zip(path)
         model = super().load(path, env, device, custom_objects, print_system_info, force_reset, **kwargs)
-        rows = model._buffer_rows
-        if len(rows):
-            model.replay_buffer.restore_packed_rows(rows.numpy())
+        if len(model._buffer_rows):
+            model.replay_buffer.restore_packed_rows(model._buffer_rows.numpy())
         model._buffer_rows = empty_rows()
         reward_fn = model._known_reward_fn()
         for learner in model.task_learners.values():
@@ -714,7 +582,7 @@ class TRLSD(OffPolicyAlgorithm):
 
     def hyperparameters(self) -> dict[str, int | float | str | bool]:
         """The settings of this run, as TensorBoard's HParams tab shows them."""
-        settings: dict[str, Any] = {
+        settings: dict[str, object] = {
             "algorithm": type(self).__name__,
             "policy": self.policy_class.__name__,
             "gamma": self.gamma,
@@ -727,29 +595,6 @@ class TRLSD(OffPolicyAlgorithm):
             key: value if isinstance(value, (int, float, bool)) else str(value)
             for key, value in settings.items()
         }
-
-    def _load_source_once(self) -> None:
-        """
-        Before ``learn``: load the source set into the shared buffer the first time (rewards discarded), and
-        warn when the buffer is empty although the model learnt before (a model saved without its rows).
-        """
-        if self.source_transitions is not None and not self._source_loaded:
-            source = source_transitions_of(
-                self.source_transitions,
-                self.source_env,
-                self.env,
-                self.seed if self.source_seed is None else self.source_seed,
-            )
-            self.load_transitions(source, keep_rewards=False)
-            self._source_loaded = True
-        learnt_before = self._source_loaded or any(learner.fitted for learner in self.task_learners.values())
-        if self.replay_buffer.size() == 0 and learnt_before:
-            warnings.warn(
-                "the shared buffer is empty although this model has learnt before (a model saved without "
-                "its buffer rows): restore it with model.load_replay_buffer(path) (saved by "
-                "save_replay_buffer) or model.load_transitions(...) before learn",
-                stacklevel=3,
-            )
 
     def learn(
         self: SelfTRLSD,
@@ -791,9 +636,27 @@ class TRLSD(OffPolicyAlgorithm):
         except BaseException:
             self._last_obs = None  # SB3's _setup_learn resets the env on None
             raise
-        # SB3 dumps the logs every log_interval episodes: a run's last values are kept too.
-        self.dump_logs()
+        self.dump_logs()  # SB3 dumps every log_interval episodes: a run's last values are kept too
         return self
+
+    def _load_source_once(self) -> None:
+        """
+        Before ``learn``: load the source set into the shared buffer the first time (rewards discarded), and
+        warn when the buffer is empty although the model learnt before (a model saved without its rows).
+        """
+        if self.source_transitions is not None and not self._source_loaded:
+            seed = self.seed if self.source_seed is None else self.source_seed
+            source = source_transitions_of(self.source_transitions, self.source_env, self.env, seed)
+            self.load_transitions(source, keep_rewards=False)
+            self._source_loaded = True
+        learnt_before = self._source_loaded or any(learner.fitted for learner in self.task_learners.values())
+        if self.replay_buffer.size() == 0 and learnt_before:
+            warnings.warn(
+                "the shared buffer is empty although this model has learnt before (a model saved without "
+                "its buffer rows): restore it with model.load_replay_buffer(path) (saved by "
+                "save_replay_buffer) or model.load_transitions(...) before learn",
+                stacklevel=3,
+            )
 
     def predict(
         self,

@@ -29,6 +29,7 @@ if TYPE_CHECKING:
 __all__ = [
     "DEFAULT_CONFIG",
     "ZOO_MISSING",
+    "ZOO_SCRIPTS",
     "config_arguments",
     "convert_trlsd_params",
     "evaluating_on_the_training_tasks",
@@ -39,6 +40,7 @@ __all__ = [
 ]
 
 ZOO_MISSING = "the RL Zoo is not installed: pip install 'sb3-trlsd[zoo]' (or pip install rl_zoo3)"
+ZOO_SCRIPTS = ("train", "enjoy")  # the Zoo's scripts ``sb3-trlsd`` hands on
 DEFAULT_CONFIG = "trlsd.yml"  # the package's config of every env it registers, the Zoo's hyperparams layout
 CONFIG_OPTIONS = ("-conf", "--conf-file")
 ENV_OPTIONS = ("--env",)
@@ -204,7 +206,7 @@ def run_zoo(script: str, argv: Sequence[str]) -> int:
     except ImportError:
         print(f"sb3-trlsd {script}: {ZOO_MISSING}", file=sys.stderr)
         return 2
-    if script not in ("train", "enjoy"):
+    if script not in ZOO_SCRIPTS:
         raise ValueError(f"script must be 'train' or 'enjoy', got {script!r}")
     saved_argv = sys.argv
     try:

@@ -8,17 +8,16 @@ from __future__ import annotations
 import argparse
 import os
 
+from sb3_trlsd.zoo import ZOO_SCRIPTS
 from sb3_trlsd_lab.benchmarks.benchmark import FAMILIES
 from sb3_trlsd_lab.benchmarks.mo_suite.families import FAMILIES as SUITE_FAMILIES
 from sb3_trlsd_lab.benchmarks.mo_suite.peers import METHODS as SUITE_METHODS
-from sb3_trlsd_lab.console import ZOO_SCRIPTS
 from sb3_trlsd_lab.execution.backends import BACKENDS
 from sb3_trlsd_lab.execution.protocols import DEFAULT_PROTOCOL, PRESETS
 from sb3_trlsd_lab.registry import FIGURES, STUDIES
 
 __all__ = [
     "IMAGE_EXTENSIONS",
-    "ZOO_SCRIPTS",
     "build_parser",
     "non_negative_int",
     "parse_task",

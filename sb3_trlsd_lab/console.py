@@ -11,9 +11,10 @@ import importlib
 import sys
 from collections.abc import Sequence
 
-__all__ = ["LAB_REQUIREMENTS", "ZOO_SCRIPTS", "main", "missing_lab_requirements"]
+from sb3_trlsd.zoo import ZOO_SCRIPTS, run_zoo
 
-ZOO_SCRIPTS = ("train", "enjoy")  # subcommands passed on to the RL Zoo
+__all__ = ["LAB_REQUIREMENTS", "main", "missing_lab_requirements"]
+
 LAB_REQUIREMENTS = ("joblib", "matplotlib")  # what the experiments extra adds to the library's requirements
 EXPERIMENTS_MISSING = (
     "sb3-trlsd: render, reproduce, benchmark, benchmark-suite and claims need the experiments extra, which "
@@ -37,8 +38,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``sb3-trlsd`` console script."""
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv and argv[0] in ZOO_SCRIPTS:
-        from sb3_trlsd.zoo import run_zoo
-
         return run_zoo(argv[0], argv[1:])
     missing = missing_lab_requirements()
     if missing:

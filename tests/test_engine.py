@@ -17,7 +17,7 @@ from threadpoolctl import threadpool_info, threadpool_limits
 
 from sb3_trlsd import TRLSD, collect_transitions
 from sb3_trlsd.engine import REFIT_BLAS_THREADS
-from sb3_trlsd_envs import FOUR_ROOMS_ID, MAZE_ID
+from sb3_trlsd_envs import FOUR_ROOMS_ID, GOAL_CARTPOLE_ID, MAZE_ID
 from sb3_trlsd_lab.execution.env_batches import env_batch
 from sb3_trlsd_lab.execution.lockstep import Lockstep
 from sb3_trlsd_lab.execution.runner import Method
@@ -134,3 +134,33 @@ def test_refits_run_blas_on_one_thread_and_give_the_threads_back():
         after = [library["num_threads"] for library in threadpool_info() if library["user_api"] == "blas"]
     assert seen and all(threads == [REFIT_BLAS_THREADS] * len(threads) for threads in seen)
     assert REFIT_BLAS_THREADS == 1 and all(threads == 2 for threads in after)
+
+
+def box_cartpole(task: int) -> gym.Env:
+    """The goal cart-pole as an env of one task with a state Box, its trajectories cut at 25 steps."""
+    env = gym.make(GOAL_CARTPOLE_ID, task=task, max_episode_steps=25)
+    state_space = env.observation_space["state"]
+    return gym.wrappers.TransformObservation(env, lambda obs: obs["state"], state_space)
+
+
+def test_sb3_s_rollout_and_add_online_transition_store_and_refit_the_same():
+    """
+    One step entry point: SB3's rollout (terminal observations, time limits as SB3 flags them) and a loop of
+    one's own through ``add_online_transition`` hand the engine the same transitions, so they store the same
+    rows, terminations apart from truncations, and take the same actions and refits, on an env of one task
+    with a state Box whose trajectories end both ways.
+    """
+    seed, n_steps = 3, 150
+    followed = []
+    for caller in ("learn", "act"):
+        env = box_cartpole(task=2)
+        model = TRLSD("LinearPolicy", env, seed=seed, kappa=0.1, reward_head="ridge")
+        actions, refits = by_learn(model, n_steps) if caller == "learn" else by_act(model, env, n_steps, seed)
+        followed.append((actions, refits, model.replay_buffer.transitions()))
+    (learn_actions, learn_refits, learnt), (act_actions, act_refits, acted) = followed
+    np.testing.assert_array_equal(learn_actions, act_actions)
+    assert learn_refits == act_refits and len(learn_refits) > 3
+    for name in ("states", "actions", "next_states", "rewards", "truncations", "terminations"):
+        np.testing.assert_array_equal(getattr(learnt, name), getattr(acted, name), err_msg=name)
+    assert learnt.truncations.any() and learnt.terminations.any()
+    assert not (learnt.truncations & learnt.terminations).any()

@@ -8,8 +8,8 @@ import pytest
 import yaml
 
 from sb3_trlsd import TRLSD, collect_transitions
+from sb3_trlsd.action_choice import Exploration
 from sb3_trlsd.config import head_defaults
-from sb3_trlsd.engine import Exploration
 from sb3_trlsd_lab.execution.protocols import AS_BUILT
 from tests.conftest import MAZE_ID
 

@@ -1,6 +1,7 @@
 """The distribution: every package of the checkout is in it, with its type marker, the license and the Zoo
 configs; the configs are found by name once installed."""
 
+import shutil
 import subprocess
 import sys
 import zipfile
@@ -12,6 +13,9 @@ import pytest
 tomllib = pytest.importorskip("tomllib")  # the standard library's from Python 3.11
 
 ROOT = Path(__file__).parents[1]
+# What the distribution is made of.
+DISTRIBUTED = ("pyproject.toml", "README.md", "LICENSE", "MANIFEST.in", "CHANGELOG.md", "constraints.txt")
+DISTRIBUTED += ("sb3_trlsd", "sb3_trlsd_lab", "envs", "zoo_configs")
 PACKAGE_ROOTS = {"sb3_trlsd": ROOT / "sb3_trlsd", "sb3_trlsd_envs": ROOT / "envs" / "sb3_trlsd_envs"}
 PACKAGE_ROOTS["sb3_trlsd_lab"] = ROOT / "sb3_trlsd_lab"
 
@@ -37,6 +41,14 @@ def test_the_distribution_lists_every_package_of_the_checkout():
 
 
 def test_the_wheel_holds_the_type_markers_the_license_and_the_zoo_configs(tmp_path):
+    # Built from a copy of what the wheel is made of: a build writes its build/ folder beside the sources.
+    source = tmp_path / "source"
+    source.mkdir()
+    for name in DISTRIBUTED:
+        if (ROOT / name).is_dir():
+            shutil.copytree(ROOT / name, source / name, ignore=shutil.ignore_patterns("__pycache__"))
+        else:
+            shutil.copy(ROOT / name, source / name)
     subprocess.run(
         [
             sys.executable,
@@ -48,7 +60,7 @@ def test_the_wheel_holds_the_type_markers_the_license_and_the_zoo_configs(tmp_pa
             "-q",
             "-w",
             str(tmp_path),
-            str(ROOT),
+            str(source),
         ],
         check=True,
         capture_output=True,

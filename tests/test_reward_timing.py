@@ -118,7 +118,7 @@ def test_each_timing_relabels_the_buffer_as_by_hand(timing):
     by_hand = {"start_state": data.states, "next_state": data.next_states}
     rewarded = by_hand.get(timing, np.concatenate([data.states, data.next_states], axis=1))
     expected = cell_means_by_hand(rewarded, data.rewards, rewarded)
-    relabelled = model.task_learner(0).relabelled_rewards(model.replay_buffer)
+    relabelled = model.engine.relabelled_rewards(0, 0)
     np.testing.assert_allclose(relabelled, expected, atol=1e-12)
     # On arrival the reward is all in the last cell; read at the start state it leaks into its neighbour.
     arrived = data.next_states[:, 0] >= 0.8
@@ -136,7 +136,7 @@ def test_a_reward_for_entering_is_learnt_only_by_the_transition_timing():
         stayed = (data.states[:, 0] >= 0.8) & (data.next_states[:, 0] >= 0.8)
         assert entered.any() and stayed.any()
         assert np.array_equal(data.rewards, entered.astype(float))
-        relabelled = model.task_learner(0).relabelled_rewards(model.replay_buffer)
+        relabelled = model.engine.relabelled_rewards(0, 0)
         if timing == "transition":  # a pair of cells: s in the fourth fifth and s' in the last is an entry
             assert np.all(relabelled[stayed] == 0.0) and np.all(relabelled[entered] == 1.0)
         else:  # staying looks paid: the entries share its cell
@@ -161,7 +161,7 @@ def test_the_ridge_head_learns_a_reward_for_entering_with_the_transition_timing(
     data = model.replay_buffer.transitions()
     entered = (data.states[:, 0] < 0.8) & (data.next_states[:, 0] >= 0.8)
     stayed = (data.states[:, 0] >= 0.8) & (data.next_states[:, 0] >= 0.8)
-    relabelled = model.task_learner(0).relabelled_rewards(model.replay_buffer)
+    relabelled = model.engine.relabelled_rewards(0, 0)
     assert relabelled[entered].mean() > relabelled[stayed].mean() + 0.5
 
 
@@ -233,7 +233,7 @@ def test_the_step_timing_relabels_the_buffer_as_ridge_regression_by_hand():
     fill_online(model, env, steps=400)
     data = model.replay_buffer.transitions()
     phi = step_features_by_hand(model, data.states, data.actions, data.next_states)
-    relabelled = model.task_learner(0).relabelled_rewards(model.replay_buffer)
+    relabelled = model.engine.relabelled_rewards(0, 0)
     np.testing.assert_allclose(relabelled, ridge_by_hand(phi, data.rewards, phi), atol=1e-8)
     assert model.task_learner(0).head.features.n_features == 2 * model.features.n_features + 2
     widths = TRLSDConfig(reward_timing="step").builder(env.observation_space, 2, linear_q=True)
@@ -251,7 +251,7 @@ def test_only_the_step_timing_learns_a_cost_per_action():
         model = TRLSD("LinearPolicy", env, kappa=0.0, reward_timing=timing, seed=0)
         fill_online(model, env, steps=600)
         data = model.replay_buffer.transitions()
-        relabelled = model.task_learner(0).relabelled_rewards(model.replay_buffer)
+        relabelled = model.engine.relabelled_rewards(0, 0)
         inside = data.next_states[:, 0] < 0.7  # far from the paid fifth: only the cost differs
         right, left = inside & (data.actions == 1), inside & (data.actions == 0)
         learnt[timing] = relabelled[left].mean() - relabelled[right].mean()

@@ -10,6 +10,7 @@ from gymnasium import spaces
 from sb3_trlsd.buffers import SharedDynamicsReplayBuffer
 from sb3_trlsd.config import TRLSDConfig
 from sb3_trlsd.data import Transitions
+from sb3_trlsd.engine import RunRows
 from sb3_trlsd.feature_maps import RBFGrid
 from sb3_trlsd.reward_heads import make_reward_head
 from sb3_trlsd.task_learner import TaskLearner
@@ -127,13 +128,20 @@ def test_with_source_the_relabelling_is_optimistic_once_the_buffer_holds_rows_th
         for state in own:
             learner.observe(state, 0, state, float(state[0]), n_rows=buffer.size())
     scratch, stored = learners["with_source"], buffer.transitions().states  # as the buffer keeps them
-    np.testing.assert_allclose(scratch.relabelled_rewards(buffer), scratch.head.estimate(stored))
-    always = learners["always"].relabelled_rewards(buffer)
+    read = RunRows("start_state")  # the run's rows, as the engine reads them at a refit
+
+    def relabelled(learner: TaskLearner) -> np.ndarray:
+        read.read(buffer)
+        assert read.inputs is not None
+        return learner.relabelled_rewards(read.inputs.view(), read.generation)
+
+    np.testing.assert_allclose(relabelled(scratch), scratch.head.estimate(stored))
+    always = relabelled(learners["always"])
     np.testing.assert_allclose(always, learners["always"].head.optimistic(stored))
     assert not np.allclose(always, scratch.head.estimate(stored))
     buffer.add_transitions(rows(source))
     stored = buffer.transitions().states
-    np.testing.assert_allclose(scratch.relabelled_rewards(buffer), scratch.head.optimistic(stored))
+    np.testing.assert_allclose(relabelled(scratch), scratch.head.optimistic(stored))
 
 
 def test_a_bad_optimism_is_refused_by_name():

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from sb3_trlsd import TRLSD, collect_transitions
-from sb3_trlsd.engine import greedy_actions, tie_rng
+from sb3_trlsd.action_choice import greedy_actions, tie_rng
 from sb3_trlsd_envs import MAZE_ID
 
 

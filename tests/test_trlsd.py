@@ -1,5 +1,6 @@
 """TRLSD as an SB3 algorithm: transfer on the maze, refit trigger, SB3 conventions, errors."""
 
+import csv
 import warnings
 
 import gymnasium as gym
@@ -8,6 +9,7 @@ import pytest
 from gymnasium import spaces
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.env_util import make_vec_env
+from stable_baselines3.common.logger import configure
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 from tensorboard.backend.event_processing.event_file_loader import EventFileLoader
 
@@ -55,8 +57,18 @@ def test_learn_relabels_fits_and_logs_to_tensorboard(source_transitions, tmp_pat
         "reward/ci_mean",
         "reward/target_samples",
         "rollout/ep_rew_mean",
+        "rollout/exploration_rate",
     }
     assert expected <= tags
+
+
+def test_the_exploration_rate_logged_is_the_stepping_task_s_epsilon(tmp_path):
+    """As SB3's DQN logs its epsilon: the rate the task of the last step explores with at its next step."""
+    model = TRLSD("LinearPolicy", gym.make(MAZE_ID, task=3), exploration_steps=100, seed=0)
+    model.set_logger(configure(str(tmp_path), ["csv"]))
+    model.learn(total_timesteps=40, log_interval=1)
+    rows = list(csv.DictReader((tmp_path / "progress.csv").open()))
+    assert float(rows[-1]["rollout/exploration_rate"]) == pytest.approx(1.0 - 40 / 100)
 
 
 @pytest.mark.parametrize("reward_timing", ["auto", "step"])  # a head of states, and of (s, a, s')

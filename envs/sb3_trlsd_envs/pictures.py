@@ -51,7 +51,7 @@ def task_picture(view: Any, walls: Any, size_px: int = 360) -> np.ndarray:
     The task's target cell is outlined in green.
 
     :param view: what to draw of a task's learner: ``task``, ``estimate(states)``, ``bonus(states)``,
-        ``q_values(states)`` and ``trajectory`` (e.g. ``sb3_trlsd.callbacks.TaskView``)
+        ``q_values(states)`` and ``trajectory`` (e.g. ``sb3_trlsd.training_log.TaskView``)
     :param walls: the maze's wall layout
     :param size_px: height of the picture; the width is twice that
     :return: (size_px, 2 * size_px, 3) uint8 RGB image

@@ -35,7 +35,7 @@ from sb3_trlsd.reward_heads.base import (
     check_log_count_rule,
 )
 from sb3_trlsd.reward_heads.bernstein import BernsteinRewardHead, BernsteinTracker
-from sb3_trlsd.reward_heads.known import KnownRewardHead, RewardFn
+from sb3_trlsd.reward_heads.known import KnownRewardHead, RewardFn, env_reward_fn
 from sb3_trlsd.reward_heads.posterior import PosteriorSnapshot, PosteriorTracker, RidgePosteriorRewardHead
 from sb3_trlsd.reward_heads.ridge import SIMILARITIES, KernelSumTracker, RidgeRewardHead
 from sb3_trlsd.reward_heads.tabular import CellFn, GridCells, TabularRewardHead
@@ -63,6 +63,7 @@ __all__ = [
     "TabularRewardHead",
     "ThompsonRidgeRewardHead",
     "check_head_kwargs",
+    "env_reward_fn",
     "head_arguments",
     "make_reward_head",
     "make_tabular_head",

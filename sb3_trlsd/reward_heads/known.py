@@ -2,17 +2,51 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from typing import Any
+from collections.abc import Callable, Sequence
+from typing import Any, Protocol
 
 import numpy as np
 
 from sb3_trlsd.reward_heads.base import RewardHead
 
-__all__ = ["KnownRewardHead", "RewardFn"]
+__all__ = ["EnvAttributes", "KnownRewardHead", "RewardFn", "env_reward_fn"]
 
 # reward_fn(states (n, d), task) -> the expected reward E[R_task(s)] of each state, (n,), finite.
 RewardFn = Callable[[np.ndarray, int], np.ndarray]
+EXPECTED_REWARD = "expected_reward"  # the env method the known head reads by default
+
+
+class EnvAttributes(Protocol):
+    """What a known head reads of an env (SB3's ``VecEnv`` has it): its unwrapped env's attributes."""
+
+    def has_attr(self, attr_name: str) -> bool: ...
+
+    def get_attr(self, attr_name: str, indices: int | Sequence[int] | None = None) -> list[Any]: ...
+
+
+def env_reward_fn(env: EnvAttributes | None, several_tasks: bool) -> RewardFn | None:
+    """
+    The env's own expected reward as a ``RewardFn``: its unwrapped env's ``expected_reward(states, task)``, or
+    for an env of one task (a state Box), ``expected_reward(states)``.
+
+    :param env: the (vectorised) env, or None
+    :param several_tasks: whether its observations carry a task (a ``{"state", "task"}`` Dict)
+    :return: the function, or None when the env has none
+    """
+    if env is None or not env.has_attr(EXPECTED_REWARD):
+        return None
+    method = env.get_attr(EXPECTED_REWARD, indices=0)[0]
+    return method if several_tasks else _OneTaskReward(method)
+
+
+class _OneTaskReward:
+    """An env of one task's ``expected_reward(states)`` seen as ``reward_fn(states, task)``."""
+
+    def __init__(self, expected_reward: Callable[[np.ndarray], np.ndarray]):
+        self.expected_reward = expected_reward
+
+    def __call__(self, states: np.ndarray, task: int) -> np.ndarray:
+        return self.expected_reward(states)
 
 
 class KnownRewardHead(RewardHead):

@@ -16,11 +16,14 @@ from typing import Protocol
 
 import numpy as np
 
+from sb3_trlsd.action_choice import explore_rng, tie_rng
 from sb3_trlsd.buffers import SharedDynamicsReplayBuffer
 from sb3_trlsd.data import Transitions
-from sb3_trlsd.engine import Engine, Run, explore_rng, tie_rng
+from sb3_trlsd.engine import Engine, Run, RunRows
+from sb3_trlsd.fqi import FQIResult
 from sb3_trlsd.policies import LinearPolicy
 from sb3_trlsd.q_functions import LinearRunsQFunctions
+from sb3_trlsd.task_learner import TaskLearner
 from sb3_trlsd.trlsd import TRLSD
 
 __all__ = ["EnvBatch", "Lockstep", "LockstepRecord"]
@@ -101,8 +104,11 @@ class Lockstep:
                 buffer.add_transitions(source, keep_rewards=False)
             buffers.append(buffer)
         self.seeds: list[int | None] = [model.seed] * n_runs  # each run's, as ``run`` is given them
+        assert model.reward_timing is not None, "resolved on the model's env"
+        self.records: list[LockstepRecord] = []
+        self.step = 0  # the step a refit counts for (see ``LockstepRecord.refit_steps``)
         self.engine = Engine(
-            [Run(buffer) for buffer in buffers],
+            [Run(buffer, RunRows(model.reward_timing), hold_back=True) for buffer in buffers],
             LinearRunsQFunctions(model.policy, buffers, n_shared=n_source),
             lambda run, task: model.new_task_learner(task, seed=self.seeds[run]),
             gamma=model.gamma,
@@ -110,7 +116,11 @@ class Lockstep:
             tol=model.config.fqi_tolerance,
             stop_rule=model.config.fqi_stop,
             exploration=model.config.exploration,
+            on_refit=self._record_refit,
         )
+
+    def _record_refit(self, run: int, learner: TaskLearner, result: FQIResult, rewards: np.ndarray) -> None:
+        self.records[run].refit_steps.append((self.step, learner.task))
 
     def run(self, seeds: Sequence[int]) -> list[LockstepRecord]:
         """
@@ -127,7 +137,7 @@ class Lockstep:
             run.explore = explore_rng(seed)
         everyone = np.arange(n_runs)
         states, tasks = self.envs.reset(everyone, list(seeds))
-        records = [
+        self.records = [
             LockstepRecord(
                 states=np.empty((self.n_steps, self.state_dim)),
                 tasks=np.empty(self.n_steps, dtype=np.int64),
@@ -136,22 +146,18 @@ class Lockstep:
             for _ in range(n_runs)
         ]
         for step in range(self.n_steps):
-            _record_refits(records, self.engine.fit_first(everyone, tasks), step)
-            actions = self.engine.behave(everyone, states, tasks)
+            self.step = step  # a first fit comes before the action of its step
+            actions = self.engine.act(everyone, states, tasks)
             next_states, rewards, terminated, truncated = self.envs.step(actions)
-            for record, state, task, action in zip(records, states, tasks, actions, strict=True):
+            for record, state, task, action in zip(self.records, states, tasks, actions, strict=True):
                 record.states[step], record.tasks[step], record.actions[step] = state, task, action
-            self.engine.observe(everyone, states, actions, rewards, next_states, tasks, terminated, truncated)
-            _record_refits(records, self.engine.refit_due(), step + 1)
+            self.step = step + 1  # a refit after the transition of step t comes before the action of t + 1
+            self.engine.step(everyone, states, actions, rewards, next_states, tasks, terminated, truncated)
+            self.engine.refit_due()
             states = next_states
             ended = np.flatnonzero(terminated | truncated)
             if len(ended):
                 states = states.copy()
                 tasks = tasks.copy()
                 states[ended], tasks[ended] = self.envs.reset(ended, [None] * len(ended))
-        return records
-
-
-def _record_refits(records: list[LockstepRecord], pairs: list[tuple[int, int]], step: int) -> None:
-    for run, task in pairs:
-        records[run].refit_steps.append((step, task))
+        return self.records

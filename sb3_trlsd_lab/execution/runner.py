@@ -4,9 +4,9 @@ batches of ``batches.py`` are checked against, and the path of the runs that dra
 fit the MLP.
 
 A run drives a ``TRLSD`` model through ``TRLSD.act`` and ``TRLSD.add_online_transition`` from a plain loop
-over the env, and takes the same actions as ``model.learn`` with the same seed (``tests/test_experiments.py``)
-without SB3's rollout machinery (vectorised env, monitor, logger, torch predict), which costs as much as the
-refits on the maze.
+over the env (``run_online``, the lab's one such loop: the benchmarks drive TRLSD through it too), and takes
+the same actions as ``model.learn`` with the same seed (``tests/test_experiments.py``) without SB3's rollout
+machinery (vectorised env, monitor, logger, torch predict), which costs as much as the refits on the maze.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ import gymnasium as gym
 import numpy as np
 
 from sb3_trlsd.data import collect_transitions
-from sb3_trlsd.observations import state_space_of
+from sb3_trlsd.observations import split_observation, state_space_of
 from sb3_trlsd.trlsd import TRLSD
 from sb3_trlsd_envs import MAZE_ID, N_TASKS
 from sb3_trlsd_envs.dynamics import MAZE_SIZE
@@ -159,20 +159,28 @@ def _broken_at_resets(states: np.ndarray, new_trajectory: np.ndarray, start: int
 
 
 def run_online(
-    model: TRLSD, env: gym.Env, n_steps: int, seed: int, snapshot_at: Iterable[int] = ()
+    model: TRLSD,
+    env: gym.Env,
+    n_steps: int,
+    seed: int,
+    snapshot_at: Iterable[int] = (),
+    expected_rewards: bool = True,
 ) -> RunRecord:
     """
-    Learn online for ``n_steps`` transitions as ``model.learn(n_steps)`` would: reset with ``seed``, act
-    greedily (fitting a task at its first step), store each transition and refit the tasks that trigger,
-    reset after the end of each trajectory.
+    The lab's one loop that drives a TRLSD model online, as ``model.learn(n_steps)`` would: reset with
+    ``seed``, act (a task fitted at its first step), step the env, hand the transition to the model (its
+    engine's step: store, feed the task's learner, refit the tasks that trigger), reset after the end of each
+    trajectory.
 
     :param model: the model (``learning_starts=0``, ``train_freq=1``, its defaults)
-    :param env: the env the model was built on (stepped here directly), of any task family: Dict
-        observations and ``env.unwrapped.expected_reward(states, task)``
+    :param env: the env the model was built on (stepped here directly), with a state Box or
+        ``{"state", "task"}`` Dict observations
     :param n_steps: online transitions
     :param seed: seed of the env's first reset (``learn`` uses the model's seed)
     :param snapshot_at: steps after which to take a ``Snapshot`` of the first task (the maze only)
-    :return: the record; ``rewards`` are noise-free expected rewards of the visited (observed) states
+    :param expected_rewards: record the noise-free expected reward of each visited state (an env of this
+        package's families: ``env.unwrapped.expected_reward(states, task)``); False: the rewards observed
+    :return: the record
     """
     snapshot_steps = sorted(set(snapshot_at))
     trail_starts = {  # each snapshot draws the states since the previous one, at most SNAPSHOT_TRAIL
@@ -180,38 +188,44 @@ def run_online(
         for previous, step in itertools.pairwise([0, *snapshot_steps])
     }
     updates_before = sum(model.policy_updates.values())
-    states = np.empty((n_steps + 1, *state_space_of(env.observation_space).shape))
+    state_dim = state_space_of(env.observation_space).shape[0]
+    states = np.empty((n_steps + 1, state_dim))
     tasks = np.empty(n_steps, dtype=np.int64)
+    observed = np.empty(n_steps)
     new_trajectory = np.zeros(n_steps + 1, dtype=bool)  # states[t] starts a trajectory after a reset
     snapshots = []
     start = time.perf_counter()
     obs, _ = env.reset(seed=seed)
     for step in range(n_steps):
-        states[step], tasks[step] = obs["state"], obs["task"]
+        (states[step],), (tasks[step],) = split_observation(obs, state_dim)
         if step in trail_starts:
             trail = _broken_at_resets(states, new_trajectory, trail_starts[step], step + 1)
             snapshots.append(snapshot(model, int(tasks[0]), step, trail))
         action = model.act(obs)
         next_obs, reward, terminated, truncated, _ = env.step(action)
+        observed[step] = float(reward)
         model.add_online_transition(obs, action, float(reward), next_obs, terminated, truncated)
         if terminated or truncated:
             obs, _ = env.reset()
             new_trajectory[step + 1] = True
         else:
             obs = next_obs
-    states[n_steps] = obs["state"]
+    states[n_steps] = split_observation(obs, state_dim)[0][0]
+    seconds = time.perf_counter() - start
     if n_steps in trail_starts:
         trail = _broken_at_resets(states, new_trajectory, trail_starts[n_steps], n_steps + 1)
         snapshots.append(snapshot(model, int(tasks[0]), n_steps, trail))
-    rewards = np.empty(n_steps)
-    family = task_family_of(env)
-    for task in np.unique(tasks):
-        rewards[tasks == task] = family.expected_reward(states[:n_steps][tasks == task], int(task))
+    rewards = observed
+    if expected_rewards:
+        rewards = np.empty(n_steps)
+        family = task_family_of(env)
+        for task in np.unique(tasks):
+            rewards[tasks == task] = family.expected_reward(states[:n_steps][tasks == task], int(task))
     return RunRecord(
         rewards=rewards,
         tasks=tasks,
         policy_updates=sum(model.policy_updates.values()) - updates_before,
-        seconds=time.perf_counter() - start,
+        seconds=seconds,
         snapshots=snapshots,
     )
 

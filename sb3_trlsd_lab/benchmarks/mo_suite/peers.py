@@ -52,6 +52,7 @@ from sb3_trlsd_lab.benchmarks.mo_suite.families import (
     scalarised_tasks,
 )
 from sb3_trlsd_lab.benchmarks.mo_suite.sf_gpi import SuccessorFeaturesGPI
+from sb3_trlsd_lab.execution.runner import run_online
 
 __all__ = [
     "METHODS",
@@ -210,16 +211,9 @@ def _sf_gpi(
 
 
 def _trlsd_online(model: TRLSD, env: StepRewards, seed: int, n_online: int) -> tuple[int, float]:
-    """``run_online``'s loop: act, store the transition, refit the tasks that trigger, reset at the ends."""
-    updates_before = sum(model.policy_updates.values())
-    start = time.perf_counter()
-    obs, _ = env.reset(seed=seed)
-    for _ in range(n_online):
-        action = model.act(obs)
-        next_obs, reward, terminated, truncated, _ = env.step(action)
-        model.add_online_transition(obs, action, float(reward), next_obs, terminated, truncated)
-        obs = env.reset()[0] if terminated or truncated else next_obs
-    return sum(model.policy_updates.values()) - updates_before, time.perf_counter() - start
+    """TRLSD online through the lab's loop (``run_online``): its refits and the seconds of its steps."""
+    record = run_online(model, env, n_online, seed, expected_rewards=False)
+    return record.policy_updates, record.seconds
 
 
 def trlsd_method(policy: str = "LinearPolicy", **settings: Any) -> Run:

@@ -1,4 +1,5 @@
-"""TensorBoard pictures and HParams, written when they are made.
+"""What a TRLSD model writes to SB3's logger while it learns: a refit's scalars (``record_refit``), a step's
+(``record_step``), a task's picture and the run's HParams, the last two written when they are made.
 
 SB3's logger keeps one value per key until it dumps, every ``log_interval`` episodes: a picture recorded
 between two dumps replaces the previous one. ``write_now`` writes a value straight to the logger's
@@ -18,12 +19,20 @@ import numpy as np
 from stable_baselines3.common.logger import HParam, Image, Logger, TensorBoardOutputFormat
 from stable_baselines3.common.vec_env import VecEnv
 
+from sb3_trlsd.fqi import FQIResult
+from sb3_trlsd.reward_timing import staying_inputs
+from sb3_trlsd.task_learner import TaskLearner
+
 __all__ = [
     "PICTURE_METHOD",
     "TaskView",
     "has_tensorboard",
     "log_hyperparameters",
     "log_task_picture",
+    "picture_due",
+    "record_refit",
+    "record_step",
+    "task_view",
     "write_now",
 ]
 
@@ -87,3 +96,63 @@ def log_hyperparameters(
     """
     metrics = {"rollout/ep_rew_mean": 0.0, "train/policy_updates": 0.0}
     write_now(logger, "hparams", HParam(hyperparameters, metrics), step)
+
+
+def record_refit(
+    logger: Logger, learner: TaskLearner, result: FQIResult, rewards: np.ndarray, refits: int
+) -> None:
+    """
+    Record a refit's scalars: ``train/policy_updates`` (every task's refits so far), ``train/fqi_iterations``,
+    ``train/bellman_residual``, and, when the logger writes somewhere, ``reward/ci_mean`` (the optimism
+    applied: the mean of R~ - R^ over the relabelled rows, from the task's relabelling).
+
+    :param logger: the model's logger
+    :param learner: the task refitted
+    :param result: the fit
+    :param rewards: the relabelled rewards it fitted on
+    :param refits: every task's refits so far
+    """
+    logger.record("train/policy_updates", refits)
+    logger.record("train/fqi_iterations", result.iterations)
+    logger.record("train/bellman_residual", result.bellman_residual)
+    if logger.output_formats:
+        logger.record("reward/ci_mean", learner.bonus_mean(rewards))
+
+
+def record_step(logger: Logger, learner: TaskLearner, exploration_rate: float) -> None:
+    """
+    Record a step's scalars, those of the task of its last transition: ``reward/target_samples`` (its online
+    samples) and ``rollout/exploration_rate`` (its epsilon at the next step, as SB3's DQN logs its own).
+    """
+    logger.record("reward/target_samples", learner.head.n_samples)
+    logger.record("rollout/exploration_rate", exploration_rate)
+
+
+def picture_due(learner: TaskLearner, every: int) -> bool:
+    """Whether a refit of ``learner`` gets a picture: its first, then every ``every`` (0: never)."""
+    return bool(every) and (learner.refits == 1 or learner.refits % every == 0)
+
+
+def task_view(
+    learner: TaskLearner, q_values: Callable[[np.ndarray, int], np.ndarray], n_actions: int
+) -> TaskView:
+    """
+    What a picture of a task's learner may show: its head's estimate and bonus of staying at a state
+    (averaged over the actions when the reward belongs to the step), its Q, and its latest trajectory.
+
+    :param learner: the task's learner
+    :param q_values: ``q_values(states, task)`` of the model's policy
+    :param n_actions: the env's actions
+    """
+
+    def staying(values: Callable[[np.ndarray], np.ndarray], states: np.ndarray) -> np.ndarray:
+        inputs = staying_inputs(states, learner.reward_timing, n_actions)
+        return np.mean([values(rows) for rows in inputs], axis=0)
+
+    return TaskView(
+        task=learner.task,
+        estimate=lambda states: staying(learner.head.estimate, states),
+        bonus=lambda states: staying(learner.head.bonus, states),
+        q_values=lambda states: q_values(states, learner.task),
+        trajectory=learner.recent_states(),
+    )
