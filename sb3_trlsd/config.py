@@ -26,7 +26,7 @@ from gymnasium import spaces
 from sb3_trlsd.engine import TIE_BREAKS, Exploration
 from sb3_trlsd.feature_choice import FEATURE_MAPS, GRID_SHAPES, default_kernel_width, make_feature_map
 from sb3_trlsd.feature_maps import FeatureMap
-from sb3_trlsd.fqi import DEFAULT_TOL, STOP_RULES
+from sb3_trlsd.fqi import DEFAULT_SOLVER, DEFAULT_TOL, SOLVERS, STOP_RULES
 from sb3_trlsd.observations import state_space_of, task_count_of
 from sb3_trlsd.reward_heads import (
     CONFIDENCE_BOUND_HEAD_NAMES,
@@ -186,6 +186,8 @@ class TRLSDConfig:
     :param fqi_stop: Fitted-Q's stopping rule, one of ``STOP_RULES``: ``"targets"`` (the Bellman targets move
         by less than ``fqi_tol`` of the return scale) or ``"theta"`` (the parameters move by less than
         ``fqi_tol`` of their scale)
+    :param fqi_solver: how a refit reaches Fitted-Q's fixed point, one of ``SOLVERS``: ``"policy_iteration"``
+        (exact evaluations of the greedy policy) or ``"iterations"`` (the fitted iterations alone)
     :param feature_map: Phi: a name of ``FEATURE_MAPS`` or a ``FeatureMap``
     :param rbf_per_dim: RBF centres per state dimension: one integer, one per dimension, or ``"cube"`` /
         ``"box"`` for counts from the box under ``max_features`` (None: the feature map's default)
@@ -220,6 +222,7 @@ class TRLSDConfig:
     fqi_max_iterations: int | None = None
     fqi_tol: float | None = None
     fqi_stop: str = "targets"
+    fqi_solver: str = DEFAULT_SOLVER
     feature_map: str | FeatureMap = "auto"
     rbf_per_dim: Counts = None
     rbf_sigma: Widths = None
@@ -260,6 +263,7 @@ class TRLSDConfig:
         _probability("exploration_final_eps", self.exploration_final_eps)
         _integer("exploration_steps", self.exploration_steps, 0)
         _one_of("fqi_stop", self.fqi_stop, STOP_RULES)
+        _one_of("fqi_solver", self.fqi_solver, SOLVERS)
         if self.fqi_tol is None:
             object.__setattr__(self, "fqi_tol", FQI_TOLS[self.fqi_stop])
         _require(
@@ -359,6 +363,7 @@ class TRLSDConfig:
             "fqi_max_iterations": self.fqi_max_iterations,
             "fqi_tol": self.fqi_tol,
             "fqi_stop": self.fqi_stop,
+            "fqi_solver": self.fqi_solver,
             "feature_map": self.feature_map
             if isinstance(self.feature_map, str)
             else type(self.feature_map).__name__,

@@ -30,7 +30,7 @@ from threadpoolctl import ThreadpoolController
 
 from sb3_trlsd.buffers import SharedDynamicsReplayBuffer
 from sb3_trlsd.data import Transitions
-from sb3_trlsd.fqi import FQIResult, targets_rule_cap
+from sb3_trlsd.fqi import DEFAULT_SOLVER, FQIResult, targets_rule_cap
 from sb3_trlsd.q_functions import QFunctions
 from sb3_trlsd.task_learner import TaskLearner
 
@@ -203,6 +203,7 @@ class Engine:
     :param stop_rule: the Fitted-Q iterations' stopping rule, one of ``sb3_trlsd.fqi.STOP_RULES``
     :param on_refit: called after each refit (e.g. to log it)
     :param exploration: the epsilon-greedy behaviour of ``act`` (default: none, the greedy policy)
+    :param solver: how a refit reaches Fitted-Q's fixed point, one of ``sb3_trlsd.fqi.SOLVERS``
     """
 
     def __init__(
@@ -216,6 +217,7 @@ class Engine:
         stop_rule: str,
         on_refit: RefitHook | None = None,
         exploration: Exploration | None = None,
+        solver: str = DEFAULT_SOLVER,
     ):
         self.runs = list(runs)
         self.exploration = exploration or Exploration()
@@ -229,6 +231,7 @@ class Engine:
         self.max_iterations = max_iterations
         self.tol = tol
         self.stop_rule = stop_rule
+        self.solver = solver
         self.on_refit = on_refit
 
     def learner(self, run: int, task: int) -> TaskLearner:
@@ -373,7 +376,7 @@ class Engine:
         buffers = [run.buffer for run in self.runs]
         rewards = [self.learner(run, task).relabelled_rewards(buffers[run]) for run, task in pairs]
         results = self.q_functions.fit(
-            pairs, buffers, rewards, self.gamma, self.max_iterations, self.tol, self.stop_rule
+            pairs, buffers, rewards, self.gamma, self.max_iterations, self.tol, self.stop_rule, self.solver
         )
         for (run, task), result, task_rewards in zip(pairs, results, rewards, strict=True):
             learner = self.learner(run, task)

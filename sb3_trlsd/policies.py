@@ -24,6 +24,7 @@ from sb3_trlsd.fqi import (
     DEFAULT_LINEAR_ITERATIONS,
     DEFAULT_MLP_ITERATIONS,
     DEFAULT_RIDGE,
+    DEFAULT_SOLVER,
     DEFAULT_STOP_RULE,
     DEFAULT_TOL,
     FQIResult,
@@ -89,6 +90,7 @@ class TaskQPolicy(BasePolicy):
         max_iterations: int | None = None,
         tol: float = DEFAULT_TOL,
         stop_rule: str = DEFAULT_STOP_RULE,
+        solver: str = DEFAULT_SOLVER,
     ) -> FQIResult:
         """
         Fit Q_task on the rows with the rewards of ``task`` (R~_task at each row's start state, in the rows'
@@ -101,10 +103,12 @@ class TaskQPolicy(BasePolicy):
         :param max_iterations: cap on the fitted iterations (None: ``default_max_iterations``)
         :param tol: relative stopping tolerance of the fitted iterations
         :param stop_rule: their stopping rule, one of ``sb3_trlsd.fqi.STOP_RULES``
+        :param solver: how the fixed point is reached, one of ``sb3_trlsd.fqi.SOLVERS``
         :return: iterations and final Bellman residual
         """
         iterations = self.default_max_iterations if max_iterations is None else max_iterations
-        return self._fit(task, rows, np.asarray(rewards, dtype=np.float64), gamma, iterations, tol, stop_rule)
+        rewards = np.asarray(rewards, dtype=np.float64)
+        return self._fit(task, rows, rewards, gamma, iterations, tol, stop_rule, solver)
 
     @abstractmethod
     def new_fit_rows(self) -> FitRows:
@@ -123,6 +127,7 @@ class TaskQPolicy(BasePolicy):
         max_iterations: int,
         tol: float,
         stop_rule: str,
+        solver: str,
     ) -> FQIResult: ...
 
 
@@ -193,6 +198,7 @@ class LinearPolicy(TaskQPolicy):
         max_iterations: int,
         tol: float,
         stop_rule: str,
+        solver: str,
     ) -> FQIResult:
         assert isinstance(rows, LinearFitRows)
         result = rows.solver.fit(
@@ -202,6 +208,8 @@ class LinearPolicy(TaskQPolicy):
             max_iterations=max_iterations,
             tol=tol,
             stop_rule=stop_rule,
+            solver=solver,
+            policy_moments=rows.policy_moments(task),
         )
         assert result.theta is not None
         self.theta[task] = th.as_tensor(result.theta, device=self.theta.device)
@@ -309,6 +317,7 @@ class MlpPolicy(TaskQPolicy):
         max_iterations: int,
         tol: float,
         stop_rule: str,
+        solver: str,
     ) -> FQIResult:
         assert isinstance(rows, TransitionRows)
         inputs, actions, next_inputs, terminated = rows.tensors()
@@ -328,4 +337,5 @@ class MlpPolicy(TaskQPolicy):
             ridge=self.fqi_ridge,
             generator=self.generator,
             stop_rule=stop_rule,
+            solver=solver,
         )

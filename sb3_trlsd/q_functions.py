@@ -18,7 +18,7 @@ import numpy as np
 
 from sb3_trlsd.buffers import BufferCursor, SharedDynamicsReplayBuffer
 from sb3_trlsd.fit_rows import FitRows, LinearFitRows
-from sb3_trlsd.fqi import FQIResult, fit_linear_fqi_runs
+from sb3_trlsd.fqi import FQIResult, PolicyMoments, fit_linear_fqi_runs
 from sb3_trlsd.policies import LinearPolicy, TaskQPolicy
 
 __all__ = ["LinearRunsQFunctions", "PolicyQFunctions", "QFunctions"]
@@ -49,6 +49,7 @@ class QFunctions(Protocol):
         max_iterations: int,
         tol: float,
         stop_rule: str,
+        solver: str,
     ) -> list[FQIResult]:
         """
         Refit the Q of each ``(run, task)`` on its run's buffer with those rewards, from its parameters now.
@@ -60,6 +61,7 @@ class QFunctions(Protocol):
         :param max_iterations: cap on the fitted iterations
         :param tol: relative stopping tolerance
         :param stop_rule: the stopping rule, one of ``sb3_trlsd.fqi.STOP_RULES``
+        :param solver: how the fixed point is reached, one of ``sb3_trlsd.fqi.SOLVERS``
         :return: one result per pair
         """
         ...
@@ -90,13 +92,14 @@ class PolicyQFunctions:
         max_iterations: int,
         tol: float,
         stop_rule: str,
+        solver: str,
     ) -> list[FQIResult]:
         results = []
         for (run, task), task_rewards in zip(pairs, rewards, strict=True):
             assert run == 0, "a policy holds the Q-functions of one run"
             self.rows.sync(buffers[run])
             results.append(
-                self.policy.fit(task, self.rows, task_rewards, gamma, max_iterations, tol, stop_rule)
+                self.policy.fit(task, self.rows, task_rewards, gamma, max_iterations, tol, stop_rule, solver)
             )
         return results
 
@@ -131,6 +134,8 @@ class LinearRunsQFunctions:
             self.shared_order = np.argsort(rows.actions, kind="stable")
             self.shared_rows = policy.new_fit_rows()
             self.shared_rows.extend(rows.take(self.shared_order))
+        # Policy iteration's cross moments of each (run, task)'s Q, kept between its refits.
+        self.policy_moments: dict[tuple[int, int], PolicyMoments] = {}
         # Each run reads its own rows, those after the shared ones.
         self._cursors = [BufferCursor(buffer.epoch, self.n_shared) for buffer in buffers]
 
@@ -147,21 +152,28 @@ class LinearRunsQFunctions:
         max_iterations: int,
         tol: float,
         stop_rule: str,
+        solver: str,
     ) -> list[FQIResult]:
         for run in sorted({run for run, _ in pairs}):
             rows, restart = buffers[run].read_new(self._cursors[run])
             assert not restart, "a run of a batch keeps every row: its buffer never wraps around"
             self.own_rows[run].extend(rows)
         fit = functools.partial(
-            fit_linear_fqi_runs, gamma=gamma, max_iterations=max_iterations, tol=tol, stop_rule=stop_rule
+            fit_linear_fqi_runs,
+            gamma=gamma,
+            max_iterations=max_iterations,
+            tol=tol,
+            stop_rule=stop_rule,
+            solver=solver,
         )
         theta0 = [self.theta[run, task] for run, task in pairs]
+        moments = [self.policy_moments.setdefault(pair, PolicyMoments()) for pair in pairs]
         if self.shared_rows is not None:
             # The shared rows are every run's: one fit, its products over them shared by all pairs.
             shared, order = self.shared_rows.solver, self.shared_order
             reordered = [np.concatenate([r[: self.n_shared][order], r[self.n_shared :]]) for r in rewards]
             own = [self.own_rows[run].solver for run, _ in pairs]
-            results = fit(shared, own, reordered, theta0=theta0)
+            results = fit(shared, own, reordered, theta0=theta0, policy_moments=moments)
         else:
             # Without shared rows, runs share no products: a fit per run, over its tasks due now.
             results_of: dict[int, FQIResult] = {}
@@ -172,6 +184,7 @@ class LinearRunsQFunctions:
                     [None] * len(mine),
                     [rewards[i] for i in mine],
                     theta0=[theta0[i] for i in mine],
+                    policy_moments=[moments[i] for i in mine],
                 )
                 results_of.update(zip(mine, fitted, strict=True))
             results = [results_of[i] for i in range(len(pairs))]

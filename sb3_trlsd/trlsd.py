@@ -30,7 +30,7 @@ from sb3_trlsd.config import LearnerBuilder, TRLSDConfig, check_discount
 from sb3_trlsd.data import Transitions
 from sb3_trlsd.engine import Engine, Run, explore_rng, tie_rng
 from sb3_trlsd.feature_maps import FeatureMap
-from sb3_trlsd.fqi import FQIResult
+from sb3_trlsd.fqi import DEFAULT_SOLVER, FQIResult
 from sb3_trlsd.observations import StateBoxMonitor, check_action_space, split_observation, state_space_of
 from sb3_trlsd.persistence import BUFFER_ROWS, empty_rows, read_replay_buffer
 from sb3_trlsd.policies import LinearPolicy, MlpPolicy, TaskQPolicy
@@ -146,6 +146,11 @@ class TRLSD(OffPolicyAlgorithm):
         the parameters move by less than ``fqi_tol`` of their scale (the paper's reproduction: with float32
         features, directions of theta the data does not see may never settle). A refit that reaches
         ``fqi_max_iterations`` first warns (``sb3_trlsd.fqi.FQICapWarning``)
+    :param fqi_solver: how a refit reaches Fitted-Q's fixed point: ``"policy_iteration"`` (default), exact
+        evaluations of the greedy policy (LSTD-Q on the buffer, an (n_actions k) x (n_actions k) linear
+        system) until a fitted iteration from the result meets ``fqi_stop``, with the fitted iterations from
+        the current Q where the system is too large (over 1,024 unknowns) or ill-conditioned or the policies
+        cycle; ``"iterations"``, the fitted iterations alone (each theta <- (X^T X + ridge I)^-1 X^T y)
     :param feature_map: Phi, shared by the linear policy and the feature heads: ``"auto"`` (on a Box of
         integers with at most 125 points, ``"lattice"``; else a grid of RBFs 1.5 spacings wide, counts from
         the box under ``max_features``, while every dimension gets at least 3 centres; else a row of RBFs per
@@ -233,6 +238,7 @@ class TRLSD(OffPolicyAlgorithm):
         fqi_max_iterations: int | None = None,
         fqi_tol: float | None = None,
         fqi_stop: str = "targets",
+        fqi_solver: str = DEFAULT_SOLVER,
         feature_map: str | FeatureMap = "auto",
         rbf_per_dim: int | Sequence[int] | str | None = None,
         rbf_sigma: float | Sequence[float] | None = None,
@@ -279,6 +285,7 @@ class TRLSD(OffPolicyAlgorithm):
             fqi_max_iterations=fqi_max_iterations,
             fqi_tol=fqi_tol,
             fqi_stop=fqi_stop,
+            fqi_solver=fqi_solver,
             feature_map=feature_map,
             rbf_per_dim=rbf_per_dim,
             rbf_sigma=rbf_sigma,
@@ -390,6 +397,7 @@ class TRLSD(OffPolicyAlgorithm):
             stop_rule=self.config.fqi_stop,
             on_refit=self._log_refit,
             exploration=self.config.exploration,
+            solver=self.config.fqi_solver,
         )
 
     # ------------------------------------------------------------- task learners
@@ -566,7 +574,10 @@ class TRLSD(OffPolicyAlgorithm):
     def _log_refit(self, run: int, learner: TaskLearner, result: FQIResult, rewards: np.ndarray) -> None:
         """
         What a refit writes to the logger (nothing outside ``learn``, before SB3 made one):
-        ``train/policy_updates``, ``train/fqi_iterations``, ``train/bellman_residual``, ``reward/ci_mean``
+        ``train/policy_updates``, ``train/fqi_iterations`` (its steps, each a pass over the buffer),
+        ``train/fqi_policy_evaluations`` (those of them that evaluated a policy exactly),
+        ``train/bellman_residual``, ``train/fqi_change`` (the stopping rule's last change, in its units of
+        ``fqi_tol``), ``train/fqi_converged`` (1 where the rule was met, 0 at the cap), ``reward/ci_mean``
         (the optimism applied, mean of R~ - R^ over the relabelled set, when the logger writes somewhere),
         and the task's picture when one is due.
         """
@@ -575,7 +586,10 @@ class TRLSD(OffPolicyAlgorithm):
             return
         self.logger.record("train/policy_updates", sum(self.policy_updates.values()))
         self.logger.record("train/fqi_iterations", result.iterations)
+        self.logger.record("train/fqi_policy_evaluations", result.policy_evaluations)
         self.logger.record("train/bellman_residual", result.bellman_residual)
+        self.logger.record("train/fqi_change", result.change)
+        self.logger.record("train/fqi_converged", float(result.converged))
         if len(rewards) and self.logger.output_formats:
             stored = self.replay_buffer.transitions()
             inputs = learner.inputs(stored.states, stored.actions, stored.next_states)
