@@ -7,6 +7,7 @@ run (``LinearFQISolver.fit``, and so ``TRLSD``) is this with a batch of one.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 from typing import NamedTuple, Protocol
 
@@ -18,6 +19,7 @@ from sb3_trlsd.fqi.policy_iteration import (
     MAX_UNKNOWNS,
     PolicyMoments,
     add_cross_moments,
+    evaluation_system,
     greedy_codes,
     none_code,
     solve_policy_evaluation,
@@ -319,32 +321,43 @@ class _BatchedFit:
         if not len(changed):
             return
         split = np.searchsorted(changed, self.n_shared)
-        shared_changed, own_changed = changed[:split], changed[split:] - self.n_shared
-        if self.shared is not None and len(shared_changed):
-            for block in self.shared_blocks:
-                assert isinstance(block.rows, slice), "the shared rows' layout gives each action a range"
-                start, stop = np.searchsorted(shared_changed, (block.rows.start, block.rows.stop))
-                rows = shared_changed[start:stop]
-                if len(rows):
-                    add_cross_moments(
-                        moments,
-                        block.action,
-                        block.phi_t[:, rows - block.rows.start],
-                        self.shared.next_phi_t[:, rows],
-                        old[rows],
-                        new[rows],
-                    )
-        own_actions = self.own.actions[i, own_changed]
-        for action in np.unique(own_actions):
-            rows = own_changed[own_actions == action]
-            add_cross_moments(
-                moments,
-                int(action),
-                self.own.phi_t[i][:, rows],
-                self.own.next_phi_t[i][:, rows],
-                old[rows + self.n_shared],
-                new[rows + self.n_shared],
-            )
+        shared_rows, own_rows = changed[:split], changed[split:] - self.n_shared
+        shared_actions = self.shared_actions[shared_rows]
+        # Own rows after the shared ones, each part sorted by action.
+        own_rows = own_rows[np.argsort(self.own.actions[i, own_rows], kind="stable")]
+        columns = [
+            (self.shared_phi_t[:, shared_rows], self.shared_next_phi_t[:, shared_rows]),
+            (self.own.phi_t[i][:, own_rows], self.own.next_phi_t[i][:, own_rows]),
+        ]
+        rows = np.concatenate([shared_rows, own_rows + self.n_shared])
+        actions = np.concatenate([shared_actions, self.own.actions[i, own_rows]])
+        order = np.argsort(actions, kind="stable")
+        phi_t = np.concatenate([phi for phi, _ in columns], axis=1)[:, order]
+        next_phi_t = np.concatenate([next_phi for _, next_phi in columns], axis=1)[:, order]
+        rows = rows[order]
+        add_cross_moments(moments, phi_t, next_phi_t, actions[order], old[rows], new[rows])
+
+    @functools.cached_property
+    def shared_phi_t(self) -> np.ndarray:
+        """Phi(s)^T of the shared rows in their layout, (k, n_shared), made once a fit needs it."""
+        if self.shared is None:
+            return np.zeros((self.k, 0), dtype=self.dtype)
+        return np.concatenate([block.phi_t for block in self.shared_blocks], axis=1)
+
+    @functools.cached_property
+    def shared_actions(self) -> np.ndarray:
+        """The action of each shared row in their layout, (n_shared,)."""
+        return np.concatenate(
+            [np.zeros(0, np.int64)]
+            + [np.full(block.phi_t.shape[1], block.action) for block in self.shared_blocks]
+        )
+
+    @property
+    def shared_next_phi_t(self) -> np.ndarray:
+        """Phi(s')^T of the shared rows in their layout, (k, n_shared)."""
+        if self.shared is None:
+            return np.zeros((self.k, 0), dtype=self.dtype)
+        return self.shared.next_phi_t
 
     def residual(self, i: int, theta: np.ndarray, shared_y: np.ndarray, own_y: np.ndarray) -> float:
         """The RMS Bellman residual sqrt(mean (y - X theta)^2) of active run ``i``."""
@@ -414,6 +427,7 @@ class _Progress:
         self.policy_moments = moments
         self.codes = codes
         self.reward_moments = reward_moments
+        self.system = None if moments is None else evaluation_system(run.gram, run.has_rows)
         self.iterating = moments is None  # the fitted iterations alone from now on
         self.steps = self.fitted = self.evaluations = 0
         self.last = "start"  # what made the current theta: "start", "fitted", "evaluated"
@@ -433,12 +447,13 @@ def _policy_step(
         return None
     progress.evaluated.add(key)
     assert progress.policy_moments is not None and progress.policy_moments.moments is not None
+    assert progress.system is not None
     moments = progress.policy_moments.moments
     fit.move_codes(i, moments, progress.codes, codes)
     progress.codes = codes
     run = progress.run
     return solve_policy_evaluation(
-        run.gram, moments, progress.reward_moments, gamma, *run.bounds, run.has_rows, theta
+        progress.system, moments, progress.reward_moments, gamma, *run.bounds, run.has_rows, theta
     )
 
 

@@ -31,6 +31,7 @@ __all__ = [
     "MIN_RCOND",
     "PolicyMoments",
     "add_cross_moments",
+    "evaluation_system",
     "greedy_codes",
     "solve_policy_evaluation",
 ]
@@ -98,22 +99,22 @@ def greedy_codes(
 
 def add_cross_moments(
     moments: np.ndarray,
-    action: int,
     phi_t: np.ndarray,
     next_phi_t: np.ndarray,
+    actions: np.ndarray,
     old: np.ndarray,
     new: np.ndarray,
 ) -> None:
     """
-    Move rows of one action from their old codes to their new ones in the cross moments [C | L | H]
-    (module docstring), in place, in float64: each row's Phi(s) Phi(s')^T leaves block (a, old) and joins
-    block (a, new) (Phi(s) alone for the clip codes). One product for all the rows: Phi(s)^T times their
-    signed next features laid out by code.
+    Move rows from their old codes to their new ones in the cross moments [C | L | H] (module docstring),
+    in place, in float64: each row's Phi(s) Phi(s')^T leaves block (a, old) and joins block (a, new)
+    (Phi(s) alone for the clip codes). One product per action: Phi(s)^T of its rows times their signed
+    next features laid out by code.
 
     :param moments: (n_actions * k, n_actions * k + 2), C then L then H as columns
-    :param action: a, the rows' action
     :param phi_t: Phi(s) of the rows, (k, m)
     :param next_phi_t: Phi(s') of the rows, (k, m)
+    :param actions: their actions, (m,), sorted
     :param old: their codes in ``moments``, (m,), different from ``new`` (``none_code``: not in them)
     :param new: their codes now, (m,)
     """
@@ -124,15 +125,37 @@ def add_cross_moments(
     next_phi = next_phi_t.T
     for codes, sign in ((new, 1.0), (old, -1.0)):
         rows = np.flatnonzero(codes < n_actions)
-        by_code[rows, codes[rows]] = sign * next_phi[rows]
+        by_code[rows, codes[rows]] = next_phi[rows] if sign > 0 else -next_phi[rows]
         clipped = np.flatnonzero((codes >= n_actions) & (codes < none_code(n_actions)))
         # A clip's bootstrap is the constant bound: its column sums Phi(s).
         signed[clipped, n_actions * k - n_actions + codes[clipped].astype(np.int64)] = sign
-    moments[action * k : (action + 1) * k] += phi_t.astype(np.float64) @ signed
+    phi = phi_t.astype(np.float64)
+    bounds = np.searchsorted(actions, np.arange(n_actions + 1))
+    for action in range(n_actions):
+        start, stop = bounds[action], bounds[action + 1]
+        if stop > start:
+            moments[action * k : (action + 1) * k] += phi[:, start:stop] @ signed[start:stop]
+
+
+def evaluation_system(gram: np.ndarray, has_rows: np.ndarray) -> np.ndarray:
+    """
+    The part of the policy evaluation's system that no policy changes: blockdiag(G_a), with identity blocks
+    (and no coupling) for the actions without rows, which keep their parameters.
+
+    :param gram: G_a = X_a^T X_a + ridge I, (n_actions, k, k)
+    :param has_rows: which actions have rows, (n_actions,) bool
+    :return: (n_actions * k, n_actions * k)
+    """
+    n_actions, k, _ = gram.shape
+    system = np.zeros((n_actions * k, n_actions * k))
+    for action in range(n_actions):
+        block = slice(action * k, (action + 1) * k)
+        system[block, block] = gram[action] if has_rows[action] else np.eye(k)
+    return system
 
 
 def solve_policy_evaluation(
-    gram: np.ndarray,
+    system: np.ndarray,
     moments: np.ndarray,
     reward_moments: np.ndarray,
     gamma: float,
@@ -145,7 +168,7 @@ def solve_policy_evaluation(
     The fixed point of the fitted iterations under fixed codes (module docstring): one LU solve of the
     A k unknowns; actions without rows keep ``theta0``.
 
-    :param gram: G_a = X_a^T X_a + ridge I, (n_actions, k, k)
+    :param system: ``evaluation_system`` of the rows, (n_actions * k, n_actions * k)
     :param moments: [C | L | H] of the codes, (n_actions * k, n_actions * k + 2)
     :param reward_moments: X_a^T r_a, (n_actions, k)
     :param gamma: discount factor
@@ -157,24 +180,16 @@ def solve_policy_evaluation(
     """
     n_actions, k = theta0.shape
     size = n_actions * k
-    system = -gamma * moments[:, :size]
+    coupled = np.repeat(has_rows, k)  # the rows of the equations of actions with rows
+    matrix = system - gamma * (moments[:, :size] * coupled[:, None])
     rhs = reward_moments.reshape(size) + gamma * (low * moments[:, size] + high * moments[:, size + 1])
-    for action in range(n_actions):
-        block = slice(action * k, (action + 1) * k)
-        if has_rows[action]:
-            system[block, block] += gram[action]
-        else:
-            system[block] = 0.0
-            system[block, block] = np.eye(k)
-            rhs[block] = theta0[action]
-    if not np.all(np.isfinite(system)) or not np.all(np.isfinite(rhs)):
-        return None
-    norm = float(np.abs(system).sum(axis=0).max())
-    lu, pivots, info = dgetrf(system)
+    rhs = np.where(coupled, rhs, theta0.reshape(size))
+    norm = float(np.abs(matrix).sum(axis=0).max())
+    lu, pivots, info = dgetrf(matrix, overwrite_a=True)
     if info != 0:
         return None
     rcond, info = dgecon(lu, norm, norm="1")
-    if info != 0 or not rcond >= MIN_RCOND:
+    if info != 0 or not rcond >= MIN_RCOND:  # NaN included
         return None
     theta, info = dgetrs(lu, pivots, rhs)
     if info != 0 or not np.all(np.isfinite(theta)):
