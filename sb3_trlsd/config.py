@@ -26,7 +26,7 @@ from gymnasium import spaces
 from sb3_trlsd.engine import TIE_BREAKS, Exploration
 from sb3_trlsd.feature_choice import FEATURE_MAPS, GRID_SHAPES, default_kernel_width, make_feature_map
 from sb3_trlsd.feature_maps import FeatureMap
-from sb3_trlsd.fqi import DEFAULT_SOLVER, DEFAULT_TOL, SOLVERS, STOP_RULES
+from sb3_trlsd.fqi import DEFAULT_TOL, SOLVERS, STOP_RULES
 from sb3_trlsd.observations import state_space_of, task_count_of
 from sb3_trlsd.reward_heads import (
     CONFIDENCE_BOUND_HEAD_NAMES,
@@ -187,7 +187,8 @@ class TRLSDConfig:
         by less than ``fqi_tol`` of the return scale) or ``"theta"`` (the parameters move by less than
         ``fqi_tol`` of their scale)
     :param fqi_solver: how a refit reaches Fitted-Q's fixed point, one of ``SOLVERS``: ``"policy_iteration"``
-        (exact evaluations of the greedy policy) or ``"iterations"`` (the fitted iterations alone)
+        (exact evaluations of the greedy policy) or ``"iterations"`` (the fitted iterations alone) (None: the
+        policy's, ``"policy_iteration"`` for the linear Q)
     :param feature_map: Phi: a name of ``FEATURE_MAPS`` or a ``FeatureMap``
     :param rbf_per_dim: RBF centres per state dimension: one integer, one per dimension, or ``"cube"`` /
         ``"box"`` for counts from the box under ``max_features`` (None: the feature map's default)
@@ -222,7 +223,7 @@ class TRLSDConfig:
     fqi_max_iterations: int | None = None
     fqi_tol: float | None = None
     fqi_stop: str = "targets"
-    fqi_solver: str = DEFAULT_SOLVER
+    fqi_solver: str | None = None
     feature_map: str | FeatureMap = "auto"
     rbf_per_dim: Counts = None
     rbf_sigma: Widths = None
@@ -263,7 +264,8 @@ class TRLSDConfig:
         _probability("exploration_final_eps", self.exploration_final_eps)
         _integer("exploration_steps", self.exploration_steps, 0)
         _one_of("fqi_stop", self.fqi_stop, STOP_RULES)
-        _one_of("fqi_solver", self.fqi_solver, SOLVERS)
+        if self.fqi_solver is not None:
+            _one_of("fqi_solver", self.fqi_solver, SOLVERS)
         if self.fqi_tol is None:
             object.__setattr__(self, "fqi_tol", FQI_TOLS[self.fqi_stop])
         _require(

@@ -30,7 +30,7 @@ from threadpoolctl import ThreadpoolController
 
 from sb3_trlsd.buffers import SharedDynamicsReplayBuffer
 from sb3_trlsd.data import Transitions
-from sb3_trlsd.fqi import DEFAULT_SOLVER, FQIResult, targets_rule_cap
+from sb3_trlsd.fqi import FQIResult, targets_rule_cap
 from sb3_trlsd.q_functions import QFunctions
 from sb3_trlsd.task_learner import TaskLearner
 
@@ -203,7 +203,8 @@ class Engine:
     :param stop_rule: the Fitted-Q iterations' stopping rule, one of ``sb3_trlsd.fqi.STOP_RULES``
     :param on_refit: called after each refit (e.g. to log it)
     :param exploration: the epsilon-greedy behaviour of ``act`` (default: none, the greedy policy)
-    :param solver: how a refit reaches Fitted-Q's fixed point, one of ``sb3_trlsd.fqi.SOLVERS``
+    :param solver: how a refit reaches Fitted-Q's fixed point, one of ``sb3_trlsd.fqi.SOLVERS`` (None: the
+        Q-functions' default)
     """
 
     def __init__(
@@ -217,7 +218,7 @@ class Engine:
         stop_rule: str,
         on_refit: RefitHook | None = None,
         exploration: Exploration | None = None,
-        solver: str = DEFAULT_SOLVER,
+        solver: str | None = None,
     ):
         self.runs = list(runs)
         self.exploration = exploration or Exploration()
@@ -231,7 +232,7 @@ class Engine:
         self.max_iterations = max_iterations
         self.tol = tol
         self.stop_rule = stop_rule
-        self.solver = solver
+        self.solver = q_functions.default_solver if solver is None else solver
         self.on_refit = on_refit
 
     def learner(self, run: int, task: int) -> TaskLearner:

@@ -47,6 +47,7 @@ class TaskQPolicy(BasePolicy):
     """
 
     default_max_iterations: int  # fitted iterations of a refit when TRLSD's fqi_max_iterations is None
+    default_solver: str  # how a refit reaches Fitted-Q's fixed point when TRLSD's fqi_solver is None
 
     def __init__(self, observation_space: spaces.Space, action_space: spaces.Space, lr_schedule: Schedule):
         super().__init__(observation_space, action_space)
@@ -90,7 +91,7 @@ class TaskQPolicy(BasePolicy):
         max_iterations: int | None = None,
         tol: float = DEFAULT_TOL,
         stop_rule: str = DEFAULT_STOP_RULE,
-        solver: str = DEFAULT_SOLVER,
+        solver: str | None = None,
     ) -> FQIResult:
         """
         Fit Q_task on the rows with the rewards of ``task`` (R~_task at each row's start state, in the rows'
@@ -103,11 +104,13 @@ class TaskQPolicy(BasePolicy):
         :param max_iterations: cap on the fitted iterations (None: ``default_max_iterations``)
         :param tol: relative stopping tolerance of the fitted iterations
         :param stop_rule: their stopping rule, one of ``sb3_trlsd.fqi.STOP_RULES``
-        :param solver: how the fixed point is reached, one of ``sb3_trlsd.fqi.SOLVERS``
+        :param solver: how the fixed point is reached, one of ``sb3_trlsd.fqi.SOLVERS`` (None:
+            ``default_solver``)
         :return: iterations and final Bellman residual
         """
         iterations = self.default_max_iterations if max_iterations is None else max_iterations
         rewards = np.asarray(rewards, dtype=np.float64)
+        solver = self.default_solver if solver is None else solver
         return self._fit(task, rows, rewards, gamma, iterations, tol, stop_rule, solver)
 
     @abstractmethod
@@ -148,6 +151,7 @@ class LinearPolicy(TaskQPolicy):
     """
 
     default_max_iterations = DEFAULT_LINEAR_ITERATIONS
+    default_solver = DEFAULT_SOLVER
     theta: th.Tensor  # (n_tasks, n_actions, k) float64, a buffer: saved with the policy's state dict
 
     def __init__(
@@ -236,6 +240,9 @@ class MlpPolicy(TaskQPolicy):
     """
 
     default_max_iterations = DEFAULT_MLP_ITERATIONS
+    # The output layer's features change at every refit: policy iteration would rebuild its cross moments
+    # over every row each time (k^2 per row, as many as ~k fitted iterations cost).
+    default_solver = "iterations"
 
     def __init__(
         self,

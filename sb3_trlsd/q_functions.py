@@ -28,6 +28,7 @@ class QFunctions(Protocol):
     """The Q-function of every (run, task) of an engine."""
 
     default_max_iterations: int  # fitted iterations of a refit when no cap is set
+    default_solver: str  # how a refit reaches Fitted-Q's fixed point when no solver is set
 
     def q_values(self, runs: np.ndarray, states: np.ndarray, tasks: np.ndarray) -> np.ndarray:
         """
@@ -77,6 +78,7 @@ class PolicyQFunctions:
     def __init__(self, policy: TaskQPolicy):
         self.policy = policy
         self.default_max_iterations = policy.default_max_iterations
+        self.default_solver = policy.default_solver
         self.rows: FitRows = policy.new_fit_rows()  # the buffer's rows as the Q-function fits on them
 
     def q_values(self, runs: np.ndarray, states: np.ndarray, tasks: np.ndarray) -> np.ndarray:
@@ -122,6 +124,7 @@ class LinearRunsQFunctions:
     ):
         self.features = policy.features
         self.default_max_iterations = policy.default_max_iterations
+        self.default_solver = policy.default_solver
         self.theta = np.zeros((len(buffers), *policy.theta.shape))
         self.own_rows: list[LinearFitRows] = [policy.new_fit_rows() for _ in buffers]
         self.n_shared = int(n_shared)

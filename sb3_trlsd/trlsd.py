@@ -30,7 +30,7 @@ from sb3_trlsd.config import LearnerBuilder, TRLSDConfig, check_discount
 from sb3_trlsd.data import Transitions
 from sb3_trlsd.engine import Engine, Run, explore_rng, tie_rng
 from sb3_trlsd.feature_maps import FeatureMap
-from sb3_trlsd.fqi import DEFAULT_SOLVER, FQIResult
+from sb3_trlsd.fqi import FQIResult
 from sb3_trlsd.observations import StateBoxMonitor, check_action_space, split_observation, state_space_of
 from sb3_trlsd.persistence import BUFFER_ROWS, empty_rows, read_replay_buffer
 from sb3_trlsd.policies import LinearPolicy, MlpPolicy, TaskQPolicy
@@ -146,11 +146,13 @@ class TRLSD(OffPolicyAlgorithm):
         the parameters move by less than ``fqi_tol`` of their scale (the paper's reproduction: with float32
         features, directions of theta the data does not see may never settle). A refit that reaches
         ``fqi_max_iterations`` first warns (``sb3_trlsd.fqi.FQICapWarning``)
-    :param fqi_solver: how a refit reaches Fitted-Q's fixed point: ``"policy_iteration"`` (default), exact
-        evaluations of the greedy policy (LSTD-Q on the buffer, an (n_actions k) x (n_actions k) linear
-        system) until a fitted iteration from the result meets ``fqi_stop``, with the fitted iterations from
-        the current Q where the system is too large (over 1,024 unknowns) or ill-conditioned or the policies
-        cycle; ``"iterations"``, the fitted iterations alone (each theta <- (X^T X + ridge I)^-1 X^T y)
+    :param fqi_solver: how a refit reaches Fitted-Q's fixed point (None: the policy's, ``"policy_iteration"``
+        for ``LinearPolicy``, ``"iterations"`` for ``MlpPolicy``, whose features change at every refit):
+        ``"policy_iteration"``, exact evaluations of the greedy policy (LSTD-Q on the buffer, an
+        (n_actions k) x (n_actions k) linear system) until a fitted iteration from the result meets
+        ``fqi_stop``, with the fitted iterations from the current Q where the system is too large (over
+        1,024 unknowns) or ill-conditioned or the policies cycle; ``"iterations"``, the fitted iterations
+        alone (each theta <- (X^T X + ridge I)^-1 X^T y)
     :param feature_map: Phi, shared by the linear policy and the feature heads: ``"auto"`` (on a Box of
         integers with at most 125 points, ``"lattice"``; else a grid of RBFs 1.5 spacings wide, counts from
         the box under ``max_features``, while every dimension gets at least 3 centres; else a row of RBFs per
@@ -238,7 +240,7 @@ class TRLSD(OffPolicyAlgorithm):
         fqi_max_iterations: int | None = None,
         fqi_tol: float | None = None,
         fqi_stop: str = "targets",
-        fqi_solver: str = DEFAULT_SOLVER,
+        fqi_solver: str | None = None,
         feature_map: str | FeatureMap = "auto",
         rbf_per_dim: int | Sequence[int] | str | None = None,
         rbf_sigma: float | Sequence[float] | None = None,

@@ -22,6 +22,14 @@ from sb3_trlsd.fqi.policy_iteration import (
 from tests.conftest import MAZE_ID
 
 GAMMA = 0.9
+PI = "policy_iteration"
+
+
+def fit_kept(data, n_actions, ridge=1e-3, **settings):
+    """A fit by policy iteration with its ``PolicyMoments`` kept by the caller, as TRLSD keeps them."""
+    rows = LinearFQISolver(data[0].shape[1], n_actions, ridge=ridge)
+    rows.extend(data[0], data[1], data[3], data[4])
+    return rows.fit(data[2], solver=PI, policy_moments=PolicyMoments(), **settings)
 
 
 def tabular_mdp(n_states=7, n_actions=3, seed=0, terminal=None):
@@ -55,7 +63,7 @@ def test_policy_iteration_reaches_q_star_in_closed_form_on_a_tabular_mdp(termina
     iterations need hundreds at this tolerance. Absorbing next states bootstrap nothing in either.
     """
     data, q_star = tabular_mdp(terminal=terminal)
-    result = fit_linear_fqi(*data, n_actions=3, gamma=GAMMA, ridge=1e-12, tol=1e-12, max_iterations=2000)
+    result = fit_kept(data, 3, ridge=1e-12, gamma=GAMMA, tol=1e-12, max_iterations=2000)
     np.testing.assert_allclose(result.theta.T, q_star, atol=1e-9)
     assert result.converged and 1 <= result.policy_evaluations <= 6
     iterated = fit_linear_fqi(
@@ -130,8 +138,8 @@ def test_policy_iteration_takes_the_greedy_policy_of_the_fitted_iterations_on_th
     """
     grid, data = maze_data
     fits = {
-        solver: fit_linear_fqi(*data, n_actions=4, gamma=GAMMA, stop_rule=stop_rule, solver=solver)
-        for solver in ("policy_iteration", "iterations")
+        PI: fit_kept(data, 4, gamma=GAMMA, stop_rule=stop_rule),
+        "iterations": fit_linear_fqi(*data, n_actions=4, gamma=GAMMA, stop_rule=stop_rule),
     }
     exact = fit_linear_fqi(
         *data,
@@ -144,13 +152,13 @@ def test_policy_iteration_takes_the_greedy_policy_of_the_fitted_iterations_on_th
     )
     axis = np.linspace(0.05, 4.95, 30)
     features = grid(np.stack(np.meshgrid(axis, axis), axis=-1).reshape(-1, 2))
-    q, q_exact = features @ fits["policy_iteration"].theta.T, features @ exact.theta.T
+    q, q_exact = features @ fits[PI].theta.T, features @ exact.theta.T
     low, high = return_bounds(data[2], GAMMA)
     assert np.mean(q.argmax(axis=1) == q_exact.argmax(axis=1)) >= 0.99
     assert np.abs(q - q_exact).max() <= 1e-4 * (high - low)
     assert all(fit.converged for fit in fits.values())
-    assert 2 * fits["policy_iteration"].iterations <= fits["iterations"].iterations
-    assert fits["policy_iteration"].policy_evaluations >= 1
+    assert 2 * fits[PI].iterations <= fits["iterations"].iterations
+    assert fits[PI].policy_evaluations >= 1
 
 
 def test_kept_moments_give_the_fit_of_fresh_ones(maze_data):
@@ -165,16 +173,16 @@ def test_kept_moments_give_the_fit_of_fresh_ones(maze_data):
     for chunk in np.array_split(np.arange(len(actions)), 3):
         solver.extend(phi[chunk], actions[chunk], next_phi[chunk], terminated[chunk])
         moved = rewards[: solver.n_transitions] + 0.05 * rng.normal(size=solver.n_transitions)
-        warm = solver.fit(moved, gamma=GAMMA, theta0=theta, policy_moments=kept)
-        fresh = solver.fit(moved, gamma=GAMMA, theta0=theta, policy_moments=PolicyMoments())
+        warm = solver.fit(moved, gamma=GAMMA, theta0=theta, policy_moments=kept, solver=PI)
+        fresh = solver.fit(moved, gamma=GAMMA, theta0=theta, policy_moments=PolicyMoments(), solver=PI)
         np.testing.assert_allclose(warm.theta, fresh.theta, rtol=1e-7, atol=1e-9)
         assert warm.iterations == fresh.iterations and warm.converged
         theta = warm.theta
     # Other rows (a buffer started over) start the moments afresh.
     other = LinearFQISolver(phi.shape[1], 4)
     other.extend(phi[:100], actions[:100], next_phi[:100], terminated[:100])
-    again = other.fit(rewards[:100], gamma=GAMMA, policy_moments=kept)
-    alone = other.fit(rewards[:100], gamma=GAMMA)
+    again = other.fit(rewards[:100], gamma=GAMMA, policy_moments=kept, solver=PI)
+    alone = other.fit(rewards[:100], gamma=GAMMA, policy_moments=PolicyMoments(), solver=PI)
     np.testing.assert_allclose(again.theta, alone.theta, rtol=1e-7, atol=1e-9)
 
 
@@ -189,9 +197,14 @@ def test_each_run_of_a_batch_gets_its_fit_alone(maze_data):
 
     shared, own = rows_of(slice(0, 2000)), [rows_of(slice(2000, 2500)), rows_of(slice(2000, 3000))]
     runs = [rewards[:2500], 3 * rewards[:3000]]
-    together = fit_linear_fqi_runs(shared, own, runs, gamma=GAMMA, theta0=[None, None])
+    moments = [PolicyMoments(), PolicyMoments()]
+    together = fit_linear_fqi_runs(
+        shared, own, runs, gamma=GAMMA, theta0=[None, None], solver=PI, policy_moments=moments
+    )
     for n_rows, run_rewards, result in zip((2500, 3000), runs, together, strict=True):
-        alone = rows_of(slice(0, n_rows)).fit(run_rewards, gamma=GAMMA)
+        alone = rows_of(slice(0, n_rows)).fit(
+            run_rewards, gamma=GAMMA, solver=PI, policy_moments=PolicyMoments()
+        )
         scale = np.abs(alone.theta).max()
         np.testing.assert_allclose(result.theta, alone.theta, atol=1e-6 * scale)
         assert result.policy_evaluations >= 1 and result.converged
@@ -203,7 +216,7 @@ def test_a_system_too_large_takes_the_fitted_iterations():
     k, n_actions, n = MAX_UNKNOWNS // 2 + 1, 2, 300
     phi, next_phi = rng.normal(size=(n, k)) * 0.1, rng.normal(size=(n, k)) * 0.1
     data = (phi, rng.integers(n_actions, size=n), rng.normal(size=n), next_phi, np.zeros(n, bool))
-    big = fit_linear_fqi(*data, n_actions=n_actions, gamma=0.5, max_iterations=20)
+    big = fit_kept(data, n_actions, gamma=0.5, max_iterations=20)
     iterated = fit_linear_fqi(*data, n_actions=n_actions, gamma=0.5, max_iterations=20, solver="iterations")
     np.testing.assert_array_equal(big.theta, iterated.theta)
     assert big.policy_evaluations == 0
@@ -220,7 +233,7 @@ def test_an_unsolvable_system_falls_back_to_the_fitted_iterations():
     phi = np.stack([np.ones(30), rng.uniform(0.5, 1.0, size=30)], axis=1)
     data = (phi, np.zeros(30, int), np.ones(30), phi * [1 / GAMMA, 0.5], np.zeros(30, bool))
     settings = {"n_actions": 1, "gamma": GAMMA, "ridge": 1e-14, "max_iterations": 300}
-    result = fit_linear_fqi(*data, **settings)
+    result = fit_kept(data, 1, ridge=1e-14, gamma=GAMMA, max_iterations=300)
     iterated = fit_linear_fqi(*data, **settings, solver="iterations")
     np.testing.assert_array_equal(result.theta, iterated.theta)
     assert result.policy_evaluations == 0 and result.iterations == iterated.iterations + 1
@@ -250,3 +263,15 @@ def test_a_bad_solver_is_refused_by_name():
         TRLSDConfig(fqi_solver="lstd")
     with pytest.raises(ValueError, match="solver"):
         fit_linear_fqi(*tabular_mdp()[0], n_actions=3, gamma=GAMMA, solver="lstd")
+
+
+def test_fresh_moments_too_costly_to_build_leave_the_fit_to_the_fitted_iterations(maze_data):
+    """
+    Moments made for one fit alone (no ``PolicyMoments`` kept by the caller) would cost a build over every
+    row, ~k passes: policy iteration leaves such a fit to the fitted iterations, which give their theta.
+    """
+    _, data = maze_data
+    alone = fit_linear_fqi(*data, n_actions=4, gamma=GAMMA, solver=PI)
+    iterated = fit_linear_fqi(*data, n_actions=4, gamma=GAMMA, solver="iterations")
+    np.testing.assert_array_equal(alone.theta, iterated.theta)
+    assert alone.policy_evaluations == 0 and alone.iterations == iterated.iterations

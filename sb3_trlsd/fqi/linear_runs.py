@@ -17,6 +17,7 @@ from scipy.linalg import cho_factor, cho_solve
 from sb3_trlsd.fqi.policy_iteration import (
     MAX_POLICY_EVALUATIONS,
     MAX_UNKNOWNS,
+    MAX_UPDATE_PASSES,
     PolicyMoments,
     add_cross_moments,
     evaluation_system,
@@ -432,6 +433,7 @@ class _Progress:
         self.steps = self.fitted = self.evaluations = 0
         self.last = "start"  # what made the current theta: "start", "fitted", "evaluated"
         self.close = False  # under the "targets" rule: the next step is a fitted iteration that may stop
+        self.kept = False  # the moments were kept by the caller, from earlier fits and for later ones
         self.evaluated: set[int] = set()  # hashes of the codes evaluated so far (a repeat is a cycle)
 
 
@@ -490,6 +492,7 @@ def fit_linear_fqi_runs(
       each, as a fitted iteration's, plus the k x k updates of the rows whose greedy action changed. Where
       n_actions * k exceeds ``MAX_UNKNOWNS``, a system is too ill-conditioned, the policies cycle or
       ``MAX_POLICY_EVALUATIONS`` are used up, the run takes the fitted iterations from ``theta0`` instead;
+      where an update would cost more than ``MAX_UPDATE_PASSES`` passes, it goes on by fitted iterations;
     - ``"iterations"``: the fitted iterations alone, theta <- (X^T X + ridge I)^-1 X^T y(theta).
 
     A run that stops at ``max_iterations`` without meeting its rule has ``converged=False`` in its result,
@@ -687,6 +690,7 @@ def _start_progress(
         own_codes[: len(moments.own_codes)] = moments.own_codes
         codes = np.concatenate([shared_codes, own_codes])
         progress[r] = _Progress(runs[r], moments, codes, reward_moments[i])
+        progress[r].kept = kept is not None
     return progress
 
 
@@ -723,6 +727,12 @@ def _next_thetas(
         return step_theta, fitted
     for i, codes in zip(evaluating, fit.codes(np.array(evaluating)), strict=True):
         state = progress[fit.active[i]]
+        # Moments kept across fits are updated for all the fits to come; fresh ones only for this one.
+        cost = np.count_nonzero(codes != state.codes) * (fit.n_actions * fit.k + 2)
+        if not state.kept and cost > MAX_UPDATE_PASSES * state.run.n_rows * fit.n_actions:
+            # The update would cost more than the passes it saves: the fitted iterations, from here on.
+            state.iterating, state.last = True, "fitted"
+            continue
         solution = _policy_step(fit, i, state, theta[i], codes, fit.gamma)
         fitted[i] = False
         if solution is None:

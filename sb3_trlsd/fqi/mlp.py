@@ -161,11 +161,11 @@ def fit_mlp_fqi(
 
     hidden = network[:-1]
     phi, next_phi = _features(hidden, x), _features(hidden, x_next)
-    rows = LinearFQISolver(phi.shape[1], output.out_features, ridge=ridge)
-    rows.extend(phi, a[:, 0].cpu().numpy(), next_phi, th.as_tensor(terminated).cpu().numpy())
+    layer_rows = LinearFQISolver(phi.shape[1], output.out_features, ridge=ridge)
+    layer_rows.extend(phi, a[:, 0].cpu().numpy(), next_phi, th.as_tensor(terminated).cpu().numpy())
     with th.no_grad():
         theta0 = th.cat([output.weight, output.bias[:, None]], dim=1).double().cpu().numpy()
-    result = rows.fit(
+    result = layer_rows.fit(
         rewards,
         gamma=gamma,
         theta0=theta0,

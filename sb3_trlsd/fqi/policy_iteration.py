@@ -28,6 +28,7 @@ from scipy.linalg.lapack import dgecon, dgetrf, dgetrs
 __all__ = [
     "MAX_POLICY_EVALUATIONS",
     "MAX_UNKNOWNS",
+    "MAX_UPDATE_PASSES",
     "MIN_RCOND",
     "PolicyMoments",
     "add_cross_moments",
@@ -42,6 +43,10 @@ MAX_POLICY_EVALUATIONS = 8
 # Above this many unknowns (n_actions * k) the system's solve ((A k)^3 / 3 flops) and its moments' memory
 # outgrow the passes over the rows they save: such fits take the fitted iterations.
 MAX_UNKNOWNS = 1024
+# An evaluation on moments made for one fit alone whose update (k (A k + 2) products per row whose code
+# changed) would cost more than this many passes over the rows (A k products per row) is not made: the fitted
+# iterations go on (a first build over every row costs ~k passes).
+MAX_UPDATE_PASSES = 2.0
 # A system whose reciprocal condition number (LAPACK's estimate, 1-norm) is below this is not solved: its
 # solution would carry more rounding than signal (off-policy LSTD can be singular).
 MIN_RCOND = 1e-12
@@ -258,9 +263,13 @@ class PolicyMoments:
             self.moments = np.zeros((size, size + 2))
             self.shared_codes = np.full(sizes[0], empty, dtype=np.int8)
             self.own_codes = np.full(sizes[1], empty, dtype=np.int8)
-            self._rows = tuple(None if rows is None else weakref.ref(rows) for rows in (shared, own))
+            self._rows = (
+                None if shared is None else weakref.ref(shared),
+                None if own is None else weakref.ref(own),
+            )
         else:
-            grown = [np.full(now - then, empty, np.int8) for now, then in zip(sizes, self._sizes, strict=1)]
+            pairs = zip(sizes, self._sizes, strict=True)
+            grown = [np.full(now - then, empty, np.int8) for now, then in pairs]
             self.shared_codes = np.concatenate([self.shared_codes, grown[0]])
             self.own_codes = np.concatenate([self.own_codes, grown[1]])
         self._sizes = (sizes[0], sizes[1])

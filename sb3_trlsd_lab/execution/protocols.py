@@ -25,8 +25,8 @@ The choices, with the options a careful reader of the paper could defend (today'
    (an unvisited cell outranks every visited one), or a value, R-MAX's R_max = 1.
 
 Besides those choices, how each refit reaches Fitted-Q's fixed point (``fqi_solver``, a name of
-``sb3_trlsd.fqi.SOLVERS``): exact evaluations of the greedy policy (``"policy_iteration"``, the library's
-default) or the fitted iterations alone (``"iterations"``), which the study may want to compare with.
+``sb3_trlsd.fqi.SOLVERS``, None for the policy's): exact evaluations of the greedy policy
+(``"policy_iteration"``, the linear Q's default) or the fitted iterations alone (``"iterations"``).
 
 Presets: today's choices (``"as-built"``: the library's defaults), one preset per single change from them,
 and the study's best-supported combination (``"no-restarts"``: the online phases without restarts), which
@@ -43,7 +43,7 @@ import math
 from dataclasses import asdict, dataclass, fields, replace
 from typing import Any
 
-from sb3_trlsd.fqi import DEFAULT_SOLVER, SOLVERS
+from sb3_trlsd.fqi import SOLVERS
 from sb3_trlsd.reward_heads.base import DEFAULT_LOG_COUNT_RULE, DEFAULT_W_FLOOR, check_log_count_rule
 from sb3_trlsd.task_learner import FIRST_FIT_RULES
 from sb3_trlsd_envs.maze import check_start
@@ -102,7 +102,8 @@ class Protocol:
     :param first_fit: when a task is first fitted, one of ``FIRST_FIT_RULES``
     :param source_sets: ``"per_batch"`` (a source set shared by the runs of a batch) or ``"per_run"``
     :param tabular_unvisited: R~ of an unvisited cell of the tabular heads (None: eq. 10 with the floor)
-    :param fqi_solver: how a refit reaches Fitted-Q's fixed point, one of ``sb3_trlsd.fqi.SOLVERS``
+    :param fqi_solver: how a refit reaches Fitted-Q's fixed point, one of ``sb3_trlsd.fqi.SOLVERS`` (None:
+        the policy's)
     """
 
     online_termination_prob: float = 0.02
@@ -114,7 +115,7 @@ class Protocol:
     first_fit: str = "first_step"
     source_sets: str = "per_batch"
     tabular_unvisited: float | None = None
-    fqi_solver: str = DEFAULT_SOLVER
+    fqi_solver: str | None = None
 
     def __post_init__(self) -> None:
         if not 0 <= self.online_termination_prob <= 1:
@@ -134,7 +135,7 @@ class Protocol:
             raise ValueError(f"first_fit must be one of {list(FIRST_FIT_RULES)}, got {self.first_fit!r}")
         if self.source_sets not in SOURCE_SET_RULES:
             raise ValueError(f"source_sets must be one of {list(SOURCE_SET_RULES)}, got {self.source_sets!r}")
-        if self.fqi_solver not in SOLVERS:
+        if self.fqi_solver is not None and self.fqi_solver not in SOLVERS:
             raise ValueError(f"fqi_solver must be one of {list(SOLVERS)}, got {self.fqi_solver!r}")
 
     def choices(self) -> dict[str, Any]:
