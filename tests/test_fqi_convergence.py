@@ -10,7 +10,7 @@ from sb3_trlsd.fqi import (
     SOLVERS,
     FQICapWarning,
     LinearFQISolver,
-    fit_linear_fqi,
+    PolicyMoments,
     fit_linear_fqi_runs,
     return_bounds,
     targets_rule_cap,
@@ -167,10 +167,17 @@ def test_a_cycling_fit_stops_at_its_cap_and_warns(stop_rule, solver):
     Policy iteration finds no stable policy either: it gives up and runs the fitted iterations from the
     warm start (one pass to restart there), to the same cap.
     """
-    data = cycling_transitions()
+    phi, actions, rewards, next_phi, terminated = cycling_transitions()
+    rows = LinearFQISolver(2, 2)
+    rows.extend(phi, actions, next_phi, terminated)
     with pytest.warns(FQICapWarning, match="cycle"):
-        result = fit_linear_fqi(
-            *data, n_actions=2, gamma=GAMMA, max_iterations=200, stop_rule=stop_rule, solver=solver
+        result = rows.fit(
+            rewards,
+            gamma=GAMMA,
+            max_iterations=200,
+            stop_rule=stop_rule,
+            solver=solver,
+            policy_moments=PolicyMoments(),
         )
     assert not result.converged and result.change > 1e-2
     evaluations = result.policy_evaluations

@@ -345,6 +345,13 @@ PRESETS: dict[str, Preset] = {
             combines=("no-online-restarts", "multitask-continue"),
         ),
         Preset(
+            "policy-iteration",
+            Protocol(fqi_solver="policy_iteration"),
+            "each refit reaches Fitted-Q's fixed point by exact evaluations of the greedy policy (LSTD-Q)",
+            "the paper fits by Fitted-Q Iteration without saying how far: policy iteration reaches the same "
+            "fixed point exactly, in fewer passes over the buffer",
+        ),
+        Preset(
             "tabular-unvisited-r-max",
             Protocol(tabular_unvisited=MAZE_R_MAX),
             f"R~ of an unvisited cell of the discrete heads is R_max = {MAZE_R_MAX:g} (kappa > 0)",
