@@ -28,7 +28,7 @@ from gymnasium import spaces
 from sb3_trlsd.action_choice import TIE_BREAKS, Exploration
 from sb3_trlsd.feature_choice import FEATURE_MAPS, GRID_SHAPES, default_kernel_width, make_feature_map
 from sb3_trlsd.feature_maps import FeatureMap
-from sb3_trlsd.fqi import DEFAULT_TOL, STOP_RULES
+from sb3_trlsd.fqi import DEFAULT_TOL, SOLVERS, STOP_RULES
 from sb3_trlsd.observations import (
     MAX_BOX_SIDE,
     WideStateBoxWarning,
@@ -304,6 +304,9 @@ class TRLSDConfig:
         the parameters move by less than ``fqi_tol`` of their scale (the paper's reproduction: with float32
         features, directions of theta the data does not see may never settle). A refit that reaches
         ``fqi_max_iterations`` first warns (``sb3_trlsd.fqi.FQICapWarning``)
+    :param fqi_solver: how a refit reaches Fitted-Q's fixed point, one of ``SOLVERS``: ``"iterations"``
+        (the fitted iterations, the default) or ``"policy_iteration"`` (exact evaluations of the greedy
+        policy, LSTD-Q, between fitted iterations; fewer passes over the rows) (None: the policy's)
     :param feature_map: Phi, shared by the linear policy and the feature heads: ``"auto"`` (on a Box of
         integers with at most 125 points, ``"lattice"``; else a grid of RBFs 1.5 spacings wide, counts from
         the box under ``max_features``, while every dimension gets at least 3 centres; else a row of RBFs per
@@ -351,6 +354,7 @@ class TRLSDConfig:
     fqi_max_iterations: int | None = None
     fqi_tol: float | None = None
     fqi_stop: str = "targets"
+    fqi_solver: str | None = None
     feature_map: str | FeatureMap = "auto"
     rbf_per_dim: Counts = None
     rbf_sigma: Widths = None
@@ -405,6 +409,8 @@ class TRLSDConfig:
         _probability("exploration_final_eps", self.exploration_final_eps)
         _integer("exploration_steps", self.exploration_steps, 0)
         _one_of("fqi_stop", self.fqi_stop, STOP_RULES)
+        if self.fqi_solver is not None:
+            _one_of("fqi_solver", self.fqi_solver, SOLVERS)
         if self.fqi_tol is None:
             object.__setattr__(self, "fqi_tol", FQI_TOLS[self.fqi_stop])
         _require(
@@ -508,6 +514,7 @@ class TRLSDConfig:
             "fqi_max_iterations": self.fqi_max_iterations,
             "fqi_tol": self.fqi_tol,
             "fqi_stop": self.fqi_stop,
+            "fqi_solver": self.fqi_solver,
             "feature_map": self.feature_map
             if isinstance(self.feature_map, str)
             else type(self.feature_map).__name__,

@@ -179,6 +179,8 @@ class Engine:
     :param stop_rule: the Fitted-Q iterations' stopping rule, one of ``sb3_trlsd.fqi.STOP_RULES``
     :param on_refit: called after each refit (e.g. to log it)
     :param exploration: the epsilon-greedy behaviour of ``act`` (default: none, the greedy policy)
+    :param solver: how a refit reaches Fitted-Q's fixed point, one of ``sb3_trlsd.fqi.SOLVERS`` (None: the
+        Q-functions' default)
     """
 
     def __init__(
@@ -192,6 +194,7 @@ class Engine:
         stop_rule: str,
         on_refit: RefitHook | None = None,
         exploration: Exploration | None = None,
+        solver: str | None = None,
     ):
         self.runs = list(runs)
         self.exploration = exploration or Exploration()
@@ -205,6 +208,7 @@ class Engine:
         self.max_iterations = max_iterations
         self.tol = tol
         self.stop_rule = stop_rule
+        self.solver = q_functions.default_solver if solver is None else solver
         self.on_refit = on_refit
 
     def learner(self, run: int, task: int) -> TaskLearner:
@@ -417,7 +421,7 @@ class Engine:
             task_rewards = self.relabelled_rewards(run, task)
             check_finite_fit(task, task_rewards, self.gamma)
             rewards.append(task_rewards)
-        fit_settings = (self.gamma, self.max_iterations, self.tol, self.stop_rule)
+        fit_settings = (self.gamma, self.max_iterations, self.tol, self.stop_rule, self.solver)
         results = self.q_functions.fit(pairs, rewards, *fit_settings)
         for (run, task), result, task_rewards in zip(pairs, results, rewards, strict=True):
             check_finite_fit(task, task_rewards, self.gamma, result)

@@ -15,7 +15,7 @@ import torch as th
 
 from sb3_trlsd.arrays import GrowableArray
 from sb3_trlsd.data import Transitions
-from sb3_trlsd.fqi import LinearFQISolver
+from sb3_trlsd.fqi import LinearFQISolver, PolicyMoments
 
 __all__ = ["FitRows", "LinearFitRows", "TransitionRows"]
 
@@ -53,7 +53,7 @@ class FitRows(ABC):
 class LinearFitRows(FitRows):
     """
     The rows as linear FQI keeps them: features Phi(s), Phi(s') and per-action Gram factorisations, in a
-    ``LinearFQISolver``.
+    ``LinearFQISolver``, and each task's ``PolicyMoments`` over them (policy iteration's warm start).
 
     :param features: Phi, states (n, d) -> (n, k)
     :param n_features: k
@@ -73,14 +73,20 @@ class LinearFitRows(FitRows):
         self.features = features
         self._solver_settings = (n_features, n_actions, ridge, dtype)
         self.solver = LinearFQISolver(n_features, n_actions, ridge=ridge, dtype=dtype)
+        self._policy_moments: dict[int, PolicyMoments] = {}
 
     @property
     def n_transitions(self) -> int:
         return self.solver.n_transitions
 
+    def policy_moments(self, task: int) -> PolicyMoments:
+        """The cross moments of ``task``'s Q over these rows, kept from one of its fits to the next."""
+        return self._policy_moments.setdefault(int(task), PolicyMoments())
+
     def _clear(self) -> None:
         n_features, n_actions, ridge, dtype = self._solver_settings
         self.solver = LinearFQISolver(n_features, n_actions, ridge=ridge, dtype=dtype)
+        self._policy_moments = {}
 
     def _extend(self, rows: Transitions) -> None:
         self.solver.extend(

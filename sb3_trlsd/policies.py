@@ -24,6 +24,7 @@ from sb3_trlsd.fqi import (
     DEFAULT_LINEAR_ITERATIONS,
     DEFAULT_MLP_ITERATIONS,
     DEFAULT_RIDGE,
+    DEFAULT_SOLVER,
     DEFAULT_STOP_RULE,
     DEFAULT_TOL,
     FQIResult,
@@ -46,6 +47,7 @@ class TaskQPolicy(BasePolicy):
     """
 
     default_max_iterations: int  # fitted iterations of a refit when TRLSD's fqi_max_iterations is None
+    default_solver: str  # how a refit reaches Fitted-Q's fixed point when TRLSD's fqi_solver is None
 
     def __init__(self, observation_space: spaces.Space, action_space: spaces.Space, lr_schedule: Schedule):
         super().__init__(observation_space, action_space)
@@ -89,6 +91,7 @@ class TaskQPolicy(BasePolicy):
         max_iterations: int | None = None,
         tol: float = DEFAULT_TOL,
         stop_rule: str = DEFAULT_STOP_RULE,
+        solver: str | None = None,
     ) -> FQIResult:
         """
         Fit Q_task on the rows with the rewards of ``task`` (R~_task at each row's start state, in the rows'
@@ -101,10 +104,14 @@ class TaskQPolicy(BasePolicy):
         :param max_iterations: cap on the fitted iterations (None: ``default_max_iterations``)
         :param tol: relative stopping tolerance of the fitted iterations
         :param stop_rule: their stopping rule, one of ``sb3_trlsd.fqi.STOP_RULES``
+        :param solver: how the fixed point is reached, one of ``sb3_trlsd.fqi.SOLVERS`` (None:
+            ``default_solver``)
         :return: iterations and final Bellman residual
         """
         iterations = self.default_max_iterations if max_iterations is None else max_iterations
-        return self._fit(task, rows, np.asarray(rewards, dtype=np.float64), gamma, iterations, tol, stop_rule)
+        rewards = np.asarray(rewards, dtype=np.float64)
+        solver = self.default_solver if solver is None else solver
+        return self._fit(task, rows, rewards, gamma, iterations, tol, stop_rule, solver)
 
     @abstractmethod
     def new_fit_rows(self) -> FitRows:
@@ -123,6 +130,7 @@ class TaskQPolicy(BasePolicy):
         max_iterations: int,
         tol: float,
         stop_rule: str,
+        solver: str,
     ) -> FQIResult: ...
 
 
@@ -143,6 +151,7 @@ class LinearPolicy(TaskQPolicy):
     """
 
     default_max_iterations = DEFAULT_LINEAR_ITERATIONS
+    default_solver = DEFAULT_SOLVER
     theta: th.Tensor  # (n_tasks, n_actions, k) float64, a buffer: saved with the policy's state dict
 
     def __init__(
@@ -193,6 +202,7 @@ class LinearPolicy(TaskQPolicy):
         max_iterations: int,
         tol: float,
         stop_rule: str,
+        solver: str,
     ) -> FQIResult:
         assert isinstance(rows, LinearFitRows)
         result = rows.solver.fit(
@@ -202,6 +212,8 @@ class LinearPolicy(TaskQPolicy):
             max_iterations=max_iterations,
             tol=tol,
             stop_rule=stop_rule,
+            solver=solver,
+            policy_moments=rows.policy_moments(task),
         )
         assert result.theta is not None
         self.theta[task] = th.as_tensor(result.theta, device=self.theta.device)
@@ -228,6 +240,9 @@ class MlpPolicy(TaskQPolicy):
     """
 
     default_max_iterations = DEFAULT_MLP_ITERATIONS
+    # The output layer's features change at every refit: policy iteration would rebuild its cross moments
+    # over every row each time (k^2 per row, as many as ~k fitted iterations cost).
+    default_solver = "iterations"
 
     def __init__(
         self,
@@ -309,6 +324,7 @@ class MlpPolicy(TaskQPolicy):
         max_iterations: int,
         tol: float,
         stop_rule: str,
+        solver: str,
     ) -> FQIResult:
         assert isinstance(rows, TransitionRows)
         inputs, actions, next_inputs, terminated = rows.tensors()
@@ -328,4 +344,5 @@ class MlpPolicy(TaskQPolicy):
             ridge=self.fqi_ridge,
             generator=self.generator,
             stop_rule=stop_rule,
+            solver=solver,
         )

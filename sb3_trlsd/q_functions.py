@@ -20,7 +20,7 @@ import numpy as np
 from sb3_trlsd.buffers import SharedDynamicsReplayBuffer
 from sb3_trlsd.data import Transitions
 from sb3_trlsd.fit_rows import FitRows, LinearFitRows
-from sb3_trlsd.fqi import FQIResult, fit_linear_fqi_runs
+from sb3_trlsd.fqi import FQIResult, PolicyMoments, fit_linear_fqi_runs
 from sb3_trlsd.policies import LinearPolicy, TaskQPolicy
 
 __all__ = ["LinearRunsQFunctions", "PolicyQFunctions", "QFunctions"]
@@ -30,6 +30,7 @@ class QFunctions(Protocol):
     """The Q-function of every (run, task) of an engine."""
 
     default_max_iterations: int  # fitted iterations of a refit when no cap is set
+    default_solver: str  # how a refit reaches Fitted-Q's fixed point when no solver is set
 
     def q_values(self, runs: np.ndarray, states: np.ndarray, tasks: np.ndarray) -> np.ndarray:
         """
@@ -60,6 +61,7 @@ class QFunctions(Protocol):
         max_iterations: int,
         tol: float,
         stop_rule: str,
+        solver: str,
     ) -> list[FQIResult]:
         """
         Refit the Q of each ``(run, task)`` on its run's rows with those rewards, from its parameters now.
@@ -70,6 +72,7 @@ class QFunctions(Protocol):
         :param max_iterations: cap on the fitted iterations
         :param tol: relative stopping tolerance
         :param stop_rule: the stopping rule, one of ``sb3_trlsd.fqi.STOP_RULES``
+        :param solver: how the fixed point is reached, one of ``sb3_trlsd.fqi.SOLVERS``
         :return: one result per pair
         """
         ...
@@ -85,6 +88,7 @@ class PolicyQFunctions:
     def __init__(self, policy: TaskQPolicy):
         self.policy = policy
         self.default_max_iterations = policy.default_max_iterations
+        self.default_solver = policy.default_solver
         self.rows: FitRows = policy.new_fit_rows()  # the buffer's rows as the Q-function fits on them
 
     def q_values(self, runs: np.ndarray, states: np.ndarray, tasks: np.ndarray) -> np.ndarray:
@@ -105,12 +109,13 @@ class PolicyQFunctions:
         max_iterations: int,
         tol: float,
         stop_rule: str,
+        solver: str,
     ) -> list[FQIResult]:
         results = []
         for (run, task), task_rewards in zip(pairs, rewards, strict=True):
             assert run == 0, "a policy holds the Q-functions of one run"
             results.append(
-                self.policy.fit(task, self.rows, task_rewards, gamma, max_iterations, tol, stop_rule)
+                self.policy.fit(task, self.rows, task_rewards, gamma, max_iterations, tol, stop_rule, solver)
             )
         return results
 
@@ -133,6 +138,7 @@ class LinearRunsQFunctions:
     ):
         self.features = policy.features
         self.default_max_iterations = policy.default_max_iterations
+        self.default_solver = policy.default_solver
         self.theta = np.zeros((len(buffers), *policy.theta.shape))
         self.own_rows: list[LinearFitRows] = [policy.new_fit_rows() for _ in buffers]
         self.n_shared = int(n_shared)
@@ -146,6 +152,8 @@ class LinearRunsQFunctions:
             self.shared_rows = policy.new_fit_rows()
             self.shared_rows.extend(rows.take(self.shared_order))
         self._rows_seen = [0] * len(buffers)  # rows of each run taken so far, the shared ones included
+        # Policy iteration's cross moments of each (run, task)'s Q, kept between its refits.
+        self.policy_moments: dict[tuple[int, int], PolicyMoments] = {}
 
     def q_values(self, runs: np.ndarray, states: np.ndarray, tasks: np.ndarray) -> np.ndarray:
         phi = self.features(np.asarray(states, dtype=np.float64))  # (n, k)
@@ -166,17 +174,24 @@ class LinearRunsQFunctions:
         max_iterations: int,
         tol: float,
         stop_rule: str,
+        solver: str,
     ) -> list[FQIResult]:
         fit = functools.partial(
-            fit_linear_fqi_runs, gamma=gamma, max_iterations=max_iterations, tol=tol, stop_rule=stop_rule
+            fit_linear_fqi_runs,
+            gamma=gamma,
+            max_iterations=max_iterations,
+            tol=tol,
+            stop_rule=stop_rule,
+            solver=solver,
         )
         theta0 = [self.theta[run, task] for run, task in pairs]
+        moments = [self.policy_moments.setdefault(pair, PolicyMoments()) for pair in pairs]
         if self.shared_rows is not None:
             # The shared rows are every run's: one fit, its products over them shared by all pairs.
             shared, order = self.shared_rows.solver, self.shared_order
             reordered = [np.concatenate([r[: self.n_shared][order], r[self.n_shared :]]) for r in rewards]
             own = [self.own_rows[run].solver for run, _ in pairs]
-            results = fit(shared, own, reordered, theta0=theta0)
+            results = fit(shared, own, reordered, theta0=theta0, policy_moments=moments)
         else:
             # Without shared rows, runs share no products: a fit per run, over its tasks due now.
             results_of: dict[int, FQIResult] = {}
@@ -187,6 +202,7 @@ class LinearRunsQFunctions:
                     [None] * len(mine),
                     [rewards[i] for i in mine],
                     theta0=[theta0[i] for i in mine],
+                    policy_moments=[moments[i] for i in mine],
                 )
                 results_of.update(zip(mine, fitted, strict=True))
             results = [results_of[i] for i in range(len(pairs))]

@@ -102,9 +102,12 @@ def record_refit(
     logger: Logger, learner: TaskLearner, result: FQIResult, rewards: np.ndarray, refits: int
 ) -> None:
     """
-    Record a refit's scalars: ``train/policy_updates`` (every task's refits so far), ``train/fqi_iterations``,
-    ``train/bellman_residual``, and, when the logger writes somewhere, ``reward/ci_mean`` (the optimism
-    applied: the mean of R~ - R^ over the relabelled rows, from the task's relabelling).
+    Record a refit's scalars: ``train/policy_updates`` (every task's refits so far), ``train/fqi_iterations``
+    (its steps, each a pass over the rows), ``train/fqi_policy_evaluations`` (those of them that evaluated a
+    policy exactly), ``train/bellman_residual``, ``train/fqi_change`` (the stopping rule's last change, in its
+    units of ``fqi_tol``), ``train/fqi_converged`` (1 where the rule was met, 0 at the cap), and, when the
+    logger writes somewhere, ``reward/ci_mean`` (the optimism applied: the mean of R~ - R^ over the
+    relabelled rows, from the task's relabelling).
 
     :param logger: the model's logger
     :param learner: the task refitted
@@ -114,7 +117,10 @@ def record_refit(
     """
     logger.record("train/policy_updates", refits)
     logger.record("train/fqi_iterations", result.iterations)
+    logger.record("train/fqi_policy_evaluations", result.policy_evaluations)
     logger.record("train/bellman_residual", result.bellman_residual)
+    logger.record("train/fqi_change", result.change)
+    logger.record("train/fqi_converged", float(result.converged))
     if logger.output_formats:
         logger.record("reward/ci_mean", learner.bonus_mean(rewards))
 

@@ -118,6 +118,8 @@ class TRLSD(OffPolicyAlgorithm):
     :param rbf_overlap: width of the RBFs in spacings of their centres
     :param max_features: the feature map's budget
     :param fourier_features: the number of Fourier features
+    :param fqi_solver: how a refit reaches Fitted-Q's fixed point: ``"iterations"`` or ``"policy_iteration"``
+        (None: the policy's, ``"iterations"``)
     :param state_bounds: ``(low, high)`` of the states for an unbounded Box (None: the Box's, finite)
     :param reward_fn: ``reward_fn(states (n, d), task) -> (n,)``, the expected reward for the ``"known"``
         head; by default the env's ``expected_reward``. Not saved: give it again to ``load``
@@ -178,6 +180,7 @@ class TRLSD(OffPolicyAlgorithm):
         fqi_max_iterations: int | None = None,
         fqi_tol: float | None = None,
         fqi_stop: str = "targets",
+        fqi_solver: str | None = None,
         feature_map: str | FeatureMap = "auto",
         rbf_per_dim: int | Sequence[int] | str | None = None,
         rbf_sigma: float | Sequence[float] | None = None,
@@ -305,6 +308,7 @@ class TRLSD(OffPolicyAlgorithm):
             stop_rule=self.config.fqi_stop,
             on_refit=self._log_refit,
             exploration=self.config.exploration,
+            solver=self.config.fqi_solver,
         )
 
     # ------------------------------------------------------------- task learners

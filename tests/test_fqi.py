@@ -199,7 +199,7 @@ def test_float32_storage_fits_the_float64_theta_within_its_rounding():
     for dtype in (np.float64, np.float32):
         solver = LinearFQISolver(k, 3, ridge=1e-3, dtype=dtype)
         solver.extend(phi, actions, next_phi, terminated)
-        fits[dtype] = solver.fit(rewards, gamma=GAMMA, tol=1e-12, max_iterations=300)
+        fits[dtype] = solver.fit(rewards, gamma=GAMMA, tol=1e-12, max_iterations=300, solver="iterations")
         assert solver._phi_t[0].view().dtype == dtype
     assert np.all(solver._phi_t[0].view()[0] == 0)  # flushed, not subnormal
     scale = np.abs(fits[np.float64].theta).max()
@@ -324,17 +324,19 @@ def test_mlp_warm_start_needs_fewer_iterations(mdp):
 def test_mlp_stopping_rule_stops_on_converged_targets_and_runs_to_the_cap_otherwise(mdp):
     """
     Refitting a converged network on the same rewards moves theta by less than tol at once: one iteration.
-    With tol = 0, or from scratch with a cap, the iterations run to ``max_iterations``.
+    With tol = 0, or from scratch with a cap, the fitted iterations run to ``max_iterations``.
     """
-    network, converged = fit_small_network(mdp, seed=4, epochs=0, tol=1e-6)
+    network, converged = fit_small_network(mdp, seed=4, epochs=0, solver="iterations", tol=1e-6)
     assert 1 < converged.iterations < 2000
-    _, again = fit_small_network(mdp, seed=4, network=network, epochs=0, tol=1e-6)
+    _, again = fit_small_network(mdp, seed=4, network=network, epochs=0, solver="iterations", tol=1e-6)
     assert again.iterations == 1
     with pytest.warns(FQICapWarning):
-        _, exact = fit_small_network(mdp, seed=4, network=network, epochs=0, tol=0.0, max_iterations=7)
+        _, exact = fit_small_network(
+            mdp, seed=4, network=network, epochs=0, solver="iterations", tol=0.0, max_iterations=7
+        )
     assert exact.iterations == 7 and not exact.converged
     with pytest.warns(FQICapWarning):
-        _, capped = fit_small_network(mdp, seed=4, epochs=0, tol=1e-6, max_iterations=5)
+        _, capped = fit_small_network(mdp, seed=4, epochs=0, solver="iterations", tol=1e-6, max_iterations=5)
     assert capped.iterations == 5 and capped.bellman_residual > converged.bellman_residual
     assert converged.converged and not capped.converged
 

@@ -7,9 +7,10 @@ import pytest
 
 from sb3_trlsd.feature_maps import RBFGrid
 from sb3_trlsd.fqi import (
+    SOLVERS,
     FQICapWarning,
     LinearFQISolver,
-    fit_linear_fqi,
+    PolicyMoments,
     fit_linear_fqi_runs,
     return_bounds,
     targets_rule_cap,
@@ -95,23 +96,26 @@ def stepped_by_hand(fit, tol):
 @pytest.mark.parametrize("dtype", [np.float64, np.float32], ids=["float64", "float32"])
 def test_the_theta_rule_gives_theta_to_the_bit_as_before(rbf_data, dtype):
     """
-    The default rule is the one every fit had: iterations stop at the first max |theta_new - theta| <=
-    tol * (1 + max |theta_new|). Stepping one iteration at a time and applying that test by hand gives the
+    The default rule is the one every fit had: the fitted iterations stop at the first max |theta_new - theta|
+    <= tol * (1 + max |theta_new|). Stepping one iteration at a time and applying that test by hand gives the
     same theta to the bit, with the default and with stop_rule='theta', alone and in a batch. (A batch is
     stepped as a batch: in float32, BLAS may sum a product of 8 rows in another order than one of 4.)
     """
     solver, rewards, tol = solver_of(rbf_data, dtype), rbf_data[2], 1e-3
-    theta, steps = stepped_by_hand(lambda **kw: solver.fit(rewards, gamma=GAMMA, **kw), tol)
+    iterations = {"solver": "iterations"}
+    theta, steps = stepped_by_hand(lambda **kw: solver.fit(rewards, gamma=GAMMA, **iterations, **kw), tol)
     for result in (
-        solver.fit(rewards, gamma=GAMMA, tol=tol),
-        solver.fit(rewards, gamma=GAMMA, tol=tol, stop_rule="theta"),
+        solver.fit(rewards, gamma=GAMMA, tol=tol, **iterations),
+        solver.fit(rewards, gamma=GAMMA, tol=tol, stop_rule="theta", **iterations),
     ):
         np.testing.assert_array_equal(result.theta, theta)
         assert result.iterations == steps and result.converged
 
     def batch(theta0, **kw):
         theta0 = [None, None] if theta0 is None else [theta0, theta0]
-        runs = fit_linear_fqi_runs(solver, [None, None], [rewards, rewards], gamma=GAMMA, theta0=theta0, **kw)
+        runs = fit_linear_fqi_runs(
+            solver, [None, None], [rewards, rewards], gamma=GAMMA, theta0=theta0, **iterations, **kw
+        )
         return runs[1]
 
     theta, steps = stepped_by_hand(batch, tol)
@@ -122,14 +126,14 @@ def test_the_theta_rule_gives_theta_to_the_bit_as_before(rbf_data, dtype):
 
 def test_float32_rounding_keeps_theta_moving_but_not_the_targets(rbf_data, reference):
     """
-    With float32 features and overlapping RBFs, rounding moves theta by more than tol at every iteration
-    (along directions the data barely constrains): the theta rule runs to its cap and warns. The targets
-    rule stops in a third of that, within the distance to the fixed point its tolerance allows (see below;
-    float32's own error, ~2e-5 of the scale here, is well inside it).
+    With float32 features and overlapping RBFs, rounding moves theta by more than tol at every fitted
+    iteration (along directions the data barely constrains): the theta rule runs to its cap and warns. The
+    targets rule stops in a third of that, within the distance to the fixed point its tolerance allows (see
+    below; float32's own error, ~2e-5 of the scale here, is well inside it).
     """
     solver, rewards = solver_of(rbf_data, np.float32), rbf_data[2]
     with pytest.warns(FQICapWarning, match="stop_rule='targets'"):
-        by_theta = solver.fit(rewards, gamma=GAMMA, tol=1e-4, max_iterations=300)
+        by_theta = solver.fit(rewards, gamma=GAMMA, tol=1e-4, max_iterations=300, solver="iterations")
     assert not by_theta.converged and by_theta.iterations == 300 and by_theta.change > 1e-4
     with warnings.catch_warnings():
         warnings.simplefilter("error", FQICapWarning)
@@ -155,13 +159,30 @@ def test_the_targets_rule_reaches_the_fixed_point_within_its_tolerance(rbf_data,
     assert distance <= 2 * GAMMA / (1 - GAMMA) * tol * (high - low)
 
 
+@pytest.mark.parametrize("solver", SOLVERS)
 @pytest.mark.parametrize("stop_rule", ["theta", "targets"])
-def test_a_cycling_fit_stops_at_its_cap_and_warns(stop_rule):
-    """Iterates that cycle between greedy policies never meet either rule: the fit stops at the cap, warns."""
-    data = cycling_transitions()
+def test_a_cycling_fit_stops_at_its_cap_and_warns(stop_rule, solver):
+    """
+    Iterates that cycle between greedy policies never meet either rule: the fit stops at the cap, warns.
+    Policy iteration finds no stable policy either: it gives up and runs the fitted iterations from the
+    warm start (one pass to restart there), to the same cap.
+    """
+    phi, actions, rewards, next_phi, terminated = cycling_transitions()
+    rows = LinearFQISolver(2, 2)
+    rows.extend(phi, actions, next_phi, terminated)
     with pytest.warns(FQICapWarning, match="cycle"):
-        result = fit_linear_fqi(*data, n_actions=2, gamma=GAMMA, max_iterations=200, stop_rule=stop_rule)
-    assert result.iterations == 200 and not result.converged and result.change > 1e-2
+        result = rows.fit(
+            rewards,
+            gamma=GAMMA,
+            max_iterations=200,
+            stop_rule=stop_rule,
+            solver=solver,
+            policy_moments=PolicyMoments(),
+        )
+    assert not result.converged and result.change > 1e-2
+    evaluations = result.policy_evaluations
+    assert result.iterations == 200 + (evaluations + 1 if solver == "policy_iteration" else 0)
+    assert (evaluations > 0) == (solver == "policy_iteration")
 
 
 def test_converged_fits_do_not_warn_and_a_repeated_cap_warns_once(rbf_data):

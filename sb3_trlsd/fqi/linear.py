@@ -8,9 +8,11 @@ from scipy.linalg import cho_factor, cho_solve
 
 from sb3_trlsd.arrays import GrowableColumns
 from sb3_trlsd.fqi.linear_runs import ActionBlock, fit_linear_fqi_runs
+from sb3_trlsd.fqi.policy_iteration import PolicyMoments
 from sb3_trlsd.fqi.targets import (
     DEFAULT_LINEAR_ITERATIONS,
     DEFAULT_RIDGE,
+    DEFAULT_SOLVER,
     DEFAULT_STOP_RULE,
     DEFAULT_TOL,
     FQIResult,
@@ -182,6 +184,8 @@ class LinearFQISolver:
         max_iterations: int = DEFAULT_LINEAR_ITERATIONS,
         tol: float = DEFAULT_TOL,
         stop_rule: str = DEFAULT_STOP_RULE,
+        solver: str = DEFAULT_SOLVER,
+        policy_moments: PolicyMoments | None = None,
     ) -> FQIResult:
         """
         Fitted-Q Iteration on the stored transitions with the given rewards (see ``fit_linear_fqi``): one run
@@ -196,6 +200,10 @@ class LinearFQISolver:
         :param stop_rule: ``"theta"`` (default): stop when max |theta_new - theta| <= tol * (1 +
             max |theta_new|); ``"targets"``: when the Bellman targets move by sqrt(mean (y_new - y)^2) <= tol
             times the return scale (see ``fit_linear_fqi_runs``)
+        :param solver: how the fixed point is reached, one of ``SOLVERS``: ``"policy_iteration"`` (default)
+            or ``"iterations"`` (see ``fit_linear_fqi_runs``)
+        :param policy_moments: policy iteration's cross moments of the Q-function being refitted, kept by the
+            caller between its fits (None: made afresh)
         :return: theta, iterations run, the RMS Bellman residual and whether the rule was met (a fit that
             stops at ``max_iterations`` without meeting it warns, ``FQICapWarning``)
         """
@@ -208,6 +216,8 @@ class LinearFQISolver:
             max_iterations=max_iterations,
             tol=tol,
             stop_rule=stop_rule,
+            solver=solver,
+            policy_moments=None if policy_moments is None else [policy_moments],
         )[0]
 
 
@@ -225,6 +235,7 @@ def fit_linear_fqi(
     tol: float = DEFAULT_TOL,
     ridge: float = DEFAULT_RIDGE,
     stop_rule: str = DEFAULT_STOP_RULE,
+    solver: str = DEFAULT_SOLVER,
 ) -> FQIResult:
     """
     Linear Fitted-Q Iteration in one call: theta_a <- (X_a^T X_a + ridge I)^-1 X_a^T y_a for each action a
@@ -253,11 +264,19 @@ def fit_linear_fqi(
         ``"targets"``: when sqrt(mean (y_new - y)^2) <= tol * (high - low) of ``return_bounds``, the RMS
         change of the Bellman targets relative to the return scale, blind to the directions of theta the data
         does not see (see ``fit_linear_fqi_runs``)
+    :param solver: how the fixed point is reached, one of ``SOLVERS``: ``"policy_iteration"`` (default: exact
+        evaluations of the greedy policy) or ``"iterations"`` (the fitted iterations alone)
     :return: theta (n_actions, k), iterations run, the RMS Bellman residual sqrt(mean (y - X theta)^2) of
         the final theta, whether the stopping rule was met and the last change it measured
     """
-    solver = LinearFQISolver(np.shape(phi)[-1], n_actions, ridge=ridge)
-    solver.extend(phi, actions, next_phi, terminated)
-    return solver.fit(
-        rewards, gamma=gamma, theta0=theta0, max_iterations=max_iterations, tol=tol, stop_rule=stop_rule
+    rows = LinearFQISolver(np.shape(phi)[-1], n_actions, ridge=ridge)
+    rows.extend(phi, actions, next_phi, terminated)
+    return rows.fit(
+        rewards,
+        gamma=gamma,
+        theta0=theta0,
+        max_iterations=max_iterations,
+        tol=tol,
+        stop_rule=stop_rule,
+        solver=solver,
     )

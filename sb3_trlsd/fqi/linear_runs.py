@@ -7,16 +7,30 @@ run (``LinearFQISolver.fit``, and so ``TRLSD``) is this with a batch of one.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 from typing import NamedTuple, Protocol
 
 import numpy as np
 from scipy.linalg import cho_factor, cho_solve
 
+from sb3_trlsd.fqi.policy_iteration import (
+    MAX_POLICY_EVALUATIONS,
+    MAX_UNKNOWNS,
+    MAX_UPDATE_PASSES,
+    PolicyMoments,
+    add_cross_moments,
+    evaluation_system,
+    greedy_codes,
+    none_code,
+    solve_policy_evaluation,
+)
 from sb3_trlsd.fqi.targets import (
     DEFAULT_LINEAR_ITERATIONS,
+    DEFAULT_SOLVER,
     DEFAULT_STOP_RULE,
     DEFAULT_TOL,
+    SOLVERS,
     STOP_RULES,
     FQIResult,
     bellman_targets_by_action,
@@ -87,6 +101,7 @@ class _Run(NamedTuple):
     own: FQIRows | None  # its own rows
     own_rewards: np.ndarray  # its rewards of them, (n_own,) in the storage precision
     inverse: np.ndarray  # (n_actions, k, k): (G_a + G_a,r - ridge I)^-1, identity where a has no row
+    gram: np.ndarray  # (n_actions, k, k): G_a + G_a,r - ridge I
     has_rows: np.ndarray  # (n_actions,) bool
     bounds: tuple[float, float]  # ``return_bounds`` of its rewards
     n_rows: int
@@ -100,6 +115,14 @@ def _check_solvers(solvers: list[FQIRows]) -> FQIRows:
         if settings != (first.n_features, first.n_actions, first.ridge, first.dtype):
             raise ValueError(f"the runs' solvers must share sizes, ridge and dtype: {first!r} and {solver!r}")
     return first
+
+
+def _gram_of(shared: FQIRows | None, own: FQIRows | None, action: int) -> np.ndarray:
+    """The Gram matrix of one action over the shared rows and a run's own ones, ridge I once."""
+    solvers = [rows for rows in (shared, own) if rows is not None]
+    # Each Gram matrix holds ridge I: the sum keeps it once.
+    extra_ridge = (len(solvers) - 1) * solvers[0].ridge * np.eye(solvers[0].n_features)
+    return np.sum([rows.gram(action) for rows in solvers], axis=0) - extra_ridge
 
 
 def _projection_of(shared: FQIRows | None, own: FQIRows | None, action: int) -> np.ndarray | None:
@@ -128,6 +151,7 @@ class _OwnRows(NamedTuple):
     action_mask: np.ndarray  # (runs, n_actions, n): 1 where the row is of that action, 0 elsewhere
     rewards: np.ndarray  # (runs, n)
     terminated: np.ndarray  # (runs, n) bool
+    actions: np.ndarray  # (runs, n) int64, -1 on padding
 
     @classmethod
     def of(cls, runs: list[_Run], n_actions: int, k: int, dtype: np.dtype) -> _OwnRows:
@@ -138,6 +162,7 @@ class _OwnRows(NamedTuple):
             np.zeros((len(runs), n_actions, n), dtype),
             np.zeros((len(runs), n), dtype),
             np.zeros((len(runs), n), dtype=bool),
+            np.full((len(runs), n), -1, dtype=np.int64),
         )
         for i, run in enumerate(runs):
             if run.own is None or not run.own.n_transitions:
@@ -150,6 +175,7 @@ class _OwnRows(NamedTuple):
             for block in run.own.action_blocks():
                 rows.phi_t[i][:, block.rows] = block.phi_t
                 rows.action_mask[i, block.action, block.rows] = 1.0
+                rows.actions[i, block.rows] = block.action
         return rows
 
     def kept(self, keep: np.ndarray) -> _OwnRows:
@@ -196,6 +222,7 @@ class _BatchedFit:
     def __init__(self, shared: FQIRows | None, runs: list[_Run], shared_rewards: np.ndarray, gamma: float):
         self.shared = None if shared is None else _SharedRows.of(shared)
         self.shared_blocks = [] if self.shared is None else self.shared.blocks
+        self.n_shared = 0 if shared is None else shared.n_transitions
         self.runs, self.gamma = runs, gamma
         self.dtype = shared_rewards.dtype
         self.n_actions, self.k = runs[0].theta0.shape
@@ -211,6 +238,8 @@ class _BatchedFit:
         self.inverses = np.stack([runs[r].inverse for r in self.active]) if len(self.active) else None
         self.has_rows = np.array([runs[r].has_rows for r in self.active]).reshape(-1, self.n_actions, 1)
         self.own = _OwnRows.of([runs[r] for r in self.active], self.n_actions, self.k, self.dtype)
+        # Q(s', .) of the last targets, (active, n_actions, n_shared) and (active, n_actions, n_own)
+        self.next_q: tuple[np.ndarray | None, np.ndarray | None] = (None, None)
 
     def drop(self, done: np.ndarray) -> None:
         """Stop iterating the active runs where ``done``."""
@@ -220,6 +249,7 @@ class _BatchedFit:
         self.scale = self.scale[keep]
         self.inverses = None if self.inverses is None else self.inverses[keep]
         self.own = self.own.kept(keep)
+        self.next_q = tuple(None if q is None else q[keep] for q in self.next_q)  # type: ignore[assignment]
 
     def targets(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """
@@ -228,25 +258,43 @@ class _BatchedFit:
         """
         stored = theta.astype(self.dtype, copy=False)
         m = len(self.active)
+        shared_q = own_q = None
         if self.shared is None:
             shared_y = self.shared_rewards
         else:
-            next_q = (stored.reshape(m * self.n_actions, self.k) @ self.shared.next_phi_t).reshape(
+            shared_q = (stored.reshape(m * self.n_actions, self.k) @ self.shared.next_phi_t).reshape(
                 m, self.n_actions, -1
             )
             shared_y = bellman_targets_by_action(
-                self.shared_rewards, next_q, self.shared.terminated, self.gamma, self.low, self.high
+                self.shared_rewards, shared_q, self.shared.terminated, self.gamma, self.low, self.high
             )
         own = self.own
         if not own.rewards.shape[1]:
+            self.next_q = (shared_q, None)
             return shared_y, own.rewards
-        own_y = bellman_targets_by_action(
-            own.rewards, np.matmul(stored, own.next_phi_t), own.terminated, self.gamma, self.low, self.high
-        )
+        own_q = np.matmul(stored, own.next_phi_t)
+        own_y = bellman_targets_by_action(own.rewards, own_q, own.terminated, self.gamma, self.low, self.high)
+        self.next_q = (shared_q, own_q)
         return shared_y, own_y
 
-    def projected(self, theta: np.ndarray, shared_y: np.ndarray, own_y: np.ndarray) -> np.ndarray:
-        """theta_a <- (X_a^T X_a + ridge I)^-1 X_a^T y_a (eq. 4, block a) for every active run."""
+    def codes(self, active: np.ndarray) -> np.ndarray:
+        """
+        The codes of the given active runs' rows at their last targets (``greedy_codes``): their shared rows
+        in their layout, then their own rows (padding: none), (len(active), n_shared + n_own_padded) int8.
+        """
+        parts = []
+        shared_q, own_q = self.next_q
+        low, high = self.low[active], self.high[active]
+        if shared_q is not None and self.shared is not None:
+            parts.append(greedy_codes(shared_q[active], self.shared.terminated, low, high))
+        if own_q is not None:
+            own_codes = greedy_codes(own_q[active], self.own.terminated[active], low, high)
+            own_codes[self.own.actions[active] < 0] = none_code(self.n_actions)
+            parts.append(own_codes)
+        return np.concatenate(parts, axis=1) if parts else np.zeros((len(active), 0), dtype=np.int8)
+
+    def moments(self, shared_y: np.ndarray, own_y: np.ndarray) -> np.ndarray:
+        """X_a^T y_a of every active run, (active, n_actions, k) float64."""
         moments = np.zeros((len(self.active), self.n_actions, self.k))
         for block in self.shared_blocks:
             block_y = shared_y[:, block.rows]
@@ -259,9 +307,58 @@ class _BatchedFit:
         if own_y.shape[1]:
             # X_a^T y_a over the own rows of action a, every action and run in one batched product.
             moments += np.matmul(self.own.action_mask * own_y[:, None, :], self.own.phi_t.transpose(0, 2, 1))
+        return moments
+
+    def projected(self, theta: np.ndarray, shared_y: np.ndarray, own_y: np.ndarray) -> np.ndarray:
+        """theta_a <- (X_a^T X_a + ridge I)^-1 X_a^T y_a (eq. 4, block a) for every active run."""
+        moments = self.moments(shared_y, own_y)
         assert self.inverses is not None, "a fit with active runs holds their inverses"
         new = np.einsum("rakj,raj->rak", self.inverses, moments)
         return np.where(self.has_rows, new, theta)
+
+    def move_codes(self, i: int, moments: np.ndarray, old: np.ndarray, new: np.ndarray) -> None:
+        """Move active run ``i``'s rows whose code changed from ``old`` to ``new`` in its cross moments."""
+        changed = np.flatnonzero(old != new)
+        if not len(changed):
+            return
+        split = np.searchsorted(changed, self.n_shared)
+        shared_rows, own_rows = changed[:split], changed[split:] - self.n_shared
+        shared_actions = self.shared_actions[shared_rows]
+        # Own rows after the shared ones, each part sorted by action.
+        own_rows = own_rows[np.argsort(self.own.actions[i, own_rows], kind="stable")]
+        columns = [
+            (self.shared_phi_t[:, shared_rows], self.shared_next_phi_t[:, shared_rows]),
+            (self.own.phi_t[i][:, own_rows], self.own.next_phi_t[i][:, own_rows]),
+        ]
+        rows = np.concatenate([shared_rows, own_rows + self.n_shared])
+        actions = np.concatenate([shared_actions, self.own.actions[i, own_rows]])
+        order = np.argsort(actions, kind="stable")
+        phi_t = np.concatenate([phi for phi, _ in columns], axis=1)[:, order]
+        next_phi_t = np.concatenate([next_phi for _, next_phi in columns], axis=1)[:, order]
+        rows = rows[order]
+        add_cross_moments(moments, phi_t, next_phi_t, actions[order], old[rows], new[rows])
+
+    @functools.cached_property
+    def shared_phi_t(self) -> np.ndarray:
+        """Phi(s)^T of the shared rows in their layout, (k, n_shared), made once a fit needs it."""
+        if self.shared is None:
+            return np.zeros((self.k, 0), dtype=self.dtype)
+        return np.concatenate([block.phi_t for block in self.shared_blocks], axis=1)
+
+    @functools.cached_property
+    def shared_actions(self) -> np.ndarray:
+        """The action of each shared row in their layout, (n_shared,)."""
+        return np.concatenate(
+            [np.zeros(0, np.int64)]
+            + [np.full(block.phi_t.shape[1], block.action) for block in self.shared_blocks]
+        )
+
+    @property
+    def shared_next_phi_t(self) -> np.ndarray:
+        """Phi(s')^T of the shared rows in their layout, (k, n_shared)."""
+        if self.shared is None:
+            return np.zeros((self.k, 0), dtype=self.dtype)
+        return self.shared.next_phi_t
 
     def residual(self, i: int, theta: np.ndarray, shared_y: np.ndarray, own_y: np.ndarray) -> float:
         """The RMS Bellman residual sqrt(mean (y - X theta)^2) of active run ``i``."""
@@ -294,9 +391,7 @@ class _BatchedFit:
         :param targets: (shared y, own y) before and after the iteration
         """
         if stop_rule == "theta":
-            old, new = thetas
-            step, scale = np.abs(new - old).max(axis=(1, 2)), 1.0 + np.abs(new).max(axis=(1, 2))
-            return step <= tol * scale, step / scale
+            return _theta_change(*thetas, tol)
         # RMS of y_new - y over each run's rows; padded own rows have y = 0 before and after.
         squares = np.zeros(len(self.active))
         for old_y, new_y in zip(*targets, strict=True):
@@ -309,6 +404,61 @@ class _BatchedFit:
         return change <= tol, change
 
 
+def _theta_change(old: np.ndarray, new: np.ndarray, tol: float) -> tuple[np.ndarray, np.ndarray]:
+    """The ``"theta"`` rule over runs (..., n_actions, k): met, and max |new - old| / (1 + max |new|)."""
+    step, scale = np.abs(new - old).max(axis=(-2, -1)), 1.0 + np.abs(new).max(axis=(-2, -1))
+    return step <= tol * scale, step / scale
+
+
+class _Progress:
+    """
+    Where one run of a ``"policy_iteration"`` fit is: evaluating greedy policies, or fitting by the fitted
+    iterations (from the start, or after giving policy iteration up).
+
+    :param run: the run
+    :param moments: its cross moments, kept across fits (``PolicyMoments``), prepared for this fit's rows
+    :param codes: the codes those moments hold, in the fit's layout (shared rows, then own rows padded)
+    :param reward_moments: X_a^T r_a of its rewards, (n_actions, k)
+    """
+
+    def __init__(
+        self, run: _Run, moments: PolicyMoments | None, codes: np.ndarray, reward_moments: np.ndarray
+    ):
+        self.run = run
+        self.policy_moments = moments
+        self.codes = codes
+        self.reward_moments = reward_moments
+        self.system = None if moments is None else evaluation_system(run.gram, run.has_rows)
+        self.iterating = moments is None  # the fitted iterations alone from now on
+        self.steps = self.fitted = self.evaluations = 0
+        self.last = "start"  # what made the current theta: "start", "fitted", "evaluated"
+        self.close = False  # under the "targets" rule: the next step is a fitted iteration that may stop
+        self.kept = False  # the moments were kept by the caller, from earlier fits and for later ones
+        self.evaluated: set[int] = set()  # hashes of the codes evaluated so far (a repeat is a cycle)
+
+
+def _policy_step(
+    fit: _BatchedFit, i: int, progress: _Progress, theta: np.ndarray, codes: np.ndarray, gamma: float
+) -> np.ndarray | None:
+    """
+    Policy iteration's step for active run ``i``: the exact evaluation of ``codes``, those of its current
+    theta, or None where the evaluations are used up, the policy repeats or its system is not solvable.
+    """
+    key = hash(codes.tobytes())
+    if progress.evaluations >= MAX_POLICY_EVALUATIONS or key in progress.evaluated:
+        return None
+    progress.evaluated.add(key)
+    assert progress.policy_moments is not None and progress.policy_moments.moments is not None
+    assert progress.system is not None
+    moments = progress.policy_moments.moments
+    fit.move_codes(i, moments, progress.codes, codes)
+    progress.codes = codes
+    run = progress.run
+    return solve_policy_evaluation(
+        progress.system, moments, progress.reward_moments, gamma, *run.bounds, run.has_rows, theta
+    )
+
+
 def fit_linear_fqi_runs(
     shared: FQIRows | None,
     own: Sequence[FQIRows | None],
@@ -319,6 +469,8 @@ def fit_linear_fqi_runs(
     max_iterations: int = DEFAULT_LINEAR_ITERATIONS,
     tol: float = DEFAULT_TOL,
     stop_rule: str = DEFAULT_STOP_RULE,
+    solver: str = DEFAULT_SOLVER,
+    policy_moments: Sequence[PolicyMoments | None] | None = None,
 ) -> list[FQIResult]:
     """
     Linear Fitted-Q Iteration of several runs at once (eq. 3-4): run r fits on the ``shared`` rows followed by
@@ -331,6 +483,18 @@ def fit_linear_fqi_runs(
     (each holding ridge I) added. Each run stops by its own rule, so it gets what a fit of it alone gives,
     up to the order of floating-point sums. ``LinearFQISolver.fit`` is this function with one run.
 
+    Two solvers reach the fixed point (``SOLVERS``):
+
+    - ``"policy_iteration"`` (default): each step evaluates the greedy policy of the current theta exactly,
+      the fixed point of the fitted iterations under that policy (LSTD-Q, ``sb3_trlsd.fqi.policy_iteration``),
+      until a fitted iteration from the result meets ``stop_rule`` (under ``"theta"``, taken when it will;
+      under ``"targets"``, once the policy or the targets stop moving). Its steps are one pass over the rows
+      each, as a fitted iteration's, plus the k x k updates of the rows whose greedy action changed. Where
+      n_actions * k exceeds ``MAX_UNKNOWNS``, a system is too ill-conditioned, the policies cycle or
+      ``MAX_POLICY_EVALUATIONS`` are used up, the run takes the fitted iterations from ``theta0`` instead;
+      where an update would cost more than ``MAX_UPDATE_PASSES`` passes, it goes on by fitted iterations;
+    - ``"iterations"``: the fitted iterations alone, theta <- (X^T X + ridge I)^-1 X^T y(theta).
+
     A run that stops at ``max_iterations`` without meeting its rule has ``converged=False`` in its result,
     and the call warns once (``FQICapWarning``) for all such runs.
 
@@ -339,7 +503,8 @@ def fit_linear_fqi_runs(
     :param rewards: each run's r, (n_shared + n_own_r,)
     :param gamma: discount factor in [0, 1)
     :param theta0: each run's warm start, (n_actions, k) or None for zeros. Actions without rows keep it
-    :param max_iterations: cap on the iterations of each run (>= 1)
+    :param max_iterations: cap on the fitted iterations of each run (>= 1; the policy evaluations are
+        bounded by ``MAX_POLICY_EVALUATIONS``)
     :param tol: tolerance of the stopping rule (>= 0); with float32 storage, a tol below 64 float32 epsilons
         (7.6e-6), which rounding would never let the iterations meet, is raised to it
     :param stop_rule: when each run stops (``STOP_RULES``):
@@ -353,22 +518,15 @@ def fit_linear_fqi_runs(
           (high - low) of their fixed point's. The RMS, not the largest change: where the greedy action
           flips back and forth on a few rows (approximate value iteration need not converge), their
           targets keep moving by a few thousandths of the scale and the largest change never settles
+    :param solver: how the fixed point is reached, one of ``SOLVERS``
+    :param policy_moments: each run's ``PolicyMoments``, kept by the caller from one fit of its Q to the next
+        so that policy iteration updates only the rows whose greedy action changed (None, or a None entry:
+        made afresh for this fit)
     :return: one result per run
     """
-    solvers = [solver for solver in (shared, *own) if solver is not None]
-    if not solvers:
-        raise ValueError("fit_linear_fqi_runs needs rows: a shared solver or an own solver per run")
-    if not len(own) == len(rewards) == len(theta0):
-        raise ValueError(
-            f"own, rewards and theta0 need one entry per run, got {len(own)}, {len(rewards)}, {len(theta0)}"
-        )
-    if not 0 <= gamma < 1:
-        raise ValueError(f"gamma must be in [0, 1), got {gamma}")
-    if not max_iterations >= 1 or not tol >= 0:
-        raise ValueError(f"max_iterations must be >= 1 and tol >= 0, got {max_iterations} and {tol}")
-    if stop_rule not in STOP_RULES:
-        raise ValueError(f"stop_rule must be one of {list(STOP_RULES)}, got {stop_rule!r}")
-    first = _check_solvers(solvers)
+    first = _check_arguments(
+        shared, own, rewards, theta0, policy_moments, gamma, max_iterations, tol, stop_rule, solver
+    )
     n_actions, k, dtype = first.n_actions, first.n_features, first.dtype
     tol = max(tol, 64 * float(np.finfo(dtype).eps))
     n_shared = 0 if shared is None else shared.n_transitions
@@ -391,6 +549,7 @@ def fit_linear_fqi_runs(
                 own=own_rows,
                 own_rewards=run_rewards[n_shared:].astype(dtype),
                 inverse=np.stack([np.eye(k) if p is None else p for p in projections]),
+                gram=np.stack([_gram_of(shared, own_rows, a) for a in range(n_actions)]),
                 has_rows=np.array([p is not None for p in projections]),
                 bounds=return_bounds(run_rewards, gamma),
                 n_rows=n_rows,
@@ -406,22 +565,25 @@ def fit_linear_fqi_runs(
     if len(fit.active):
         theta = np.stack([runs[r].theta0 for r in fit.active])
         shared_y, own_y = fit.targets(theta)
-        for iteration in range(1, max_iterations + 1):
-            new_theta = fit.projected(theta, shared_y, own_y)
+        evaluating = solver == "policy_iteration" and n_actions * k <= MAX_UNKNOWNS
+        progress = _start_progress(fit, runs, shared, own, policy_moments, shared_y, own_y, evaluating)
+        while True:
+            step_theta, fitted = _next_thetas(fit, progress, theta, shared_y, own_y, stop_rule, tol)
             old_theta, old_y = theta, (shared_y, own_y)
-            theta = new_theta
+            theta = step_theta
             shared_y, own_y = fit.targets(theta)
             converged, change = fit.stopped(stop_rule, tol, (old_theta, theta), (old_y, (shared_y, own_y)))
-            done = converged | (iteration == max_iterations)
+            done = _count_step(fit, progress, fitted, converged, max_iterations, stop_rule)
             capped = capped or not converged[done].all()
             for i in np.flatnonzero(done):
-                residual = fit.residual(int(i), theta[i], shared_y, own_y)
+                state = progress[fit.active[i]]
                 results[fit.active[i]] = FQIResult(
                     theta=theta[i],
-                    iterations=iteration,
-                    bellman_residual=residual,
+                    iterations=state.steps,
+                    bellman_residual=fit.residual(int(i), theta[i], shared_y, own_y),
                     converged=bool(converged[i]),
                     change=float(change[i]),
+                    policy_evaluations=state.evaluations,
                 )
             if done.all():
                 break
@@ -429,8 +591,174 @@ def fit_linear_fqi_runs(
                 theta = theta[~done]
                 shared_y, own_y = shared_y[~done], own_y[~done]
                 fit.drop(done)
+        _keep_policy_moments(fit, progress, shared, runs)
     if capped:
         warn_at_cap(stop_rule)
-    fitted = [result for result in results if result is not None]
-    assert len(fitted) == len(results), "every run has its result"
-    return fitted
+    fitted_results = [result for result in results if result is not None]
+    assert len(fitted_results) == len(results), "every run has its result"
+    return fitted_results
+
+
+def _check_arguments(
+    shared: FQIRows | None,
+    own: Sequence[FQIRows | None],
+    rewards: Sequence[np.ndarray],
+    theta0: Sequence[np.ndarray | None],
+    policy_moments: Sequence[PolicyMoments | None] | None,
+    gamma: float,
+    max_iterations: int,
+    tol: float,
+    stop_rule: str,
+    solver: str,
+) -> FQIRows:
+    """Refuse the arguments of ``fit_linear_fqi_runs`` it cannot take; return the first solver."""
+    solvers = [solver for solver in (shared, *own) if solver is not None]
+    if not solvers:
+        raise ValueError("fit_linear_fqi_runs needs rows: a shared solver or an own solver per run")
+    if not len(own) == len(rewards) == len(theta0):
+        raise ValueError(
+            f"own, rewards and theta0 need one entry per run, got {len(own)}, {len(rewards)}, {len(theta0)}"
+        )
+    if policy_moments is not None and len(policy_moments) != len(own):
+        raise ValueError(f"policy_moments needs one entry per run, got {len(policy_moments)} for {len(own)}")
+    if not 0 <= gamma < 1:
+        raise ValueError(f"gamma must be in [0, 1), got {gamma}")
+    if not max_iterations >= 1 or not tol >= 0:
+        raise ValueError(f"max_iterations must be >= 1 and tol >= 0, got {max_iterations} and {tol}")
+    if stop_rule not in STOP_RULES:
+        raise ValueError(f"stop_rule must be one of {list(STOP_RULES)}, got {stop_rule!r}")
+    if solver not in SOLVERS:
+        raise ValueError(f"solver must be one of {list(SOLVERS)}, got {solver!r}")
+    return _check_solvers(solvers)
+
+
+def _count_step(
+    fit: _BatchedFit,
+    progress: dict[int, _Progress],
+    fitted: np.ndarray,
+    converged: np.ndarray,
+    max_iterations: int,
+    stop_rule: str,
+) -> np.ndarray:
+    """Count the step each active run made; return which runs are done (a fitted iteration that met the
+    rule, or the cap of fitted iterations)."""
+    done = np.zeros(len(fit.active), dtype=bool)
+    settling = []
+    for i, r in enumerate(fit.active):
+        state = progress[r]
+        state.steps += 1
+        if fitted[i]:
+            state.fitted += 1
+            done[i] = converged[i] or state.fitted == max_iterations
+            state.close = False
+        elif state.last == "evaluated" and stop_rule == "targets":
+            settling.append(i)
+    if settling:
+        # Under the "targets" rule, try a fitted iteration once the policy or its targets settle.
+        for i, codes in zip(settling, fit.codes(np.array(settling)), strict=True):
+            state = progress[fit.active[i]]
+            state.close = bool(converged[i]) or bool(np.array_equal(codes, state.codes))
+    return done
+
+
+def _start_progress(
+    fit: _BatchedFit,
+    runs: list[_Run],
+    shared: FQIRows | None,
+    own: Sequence[FQIRows | None],
+    policy_moments: Sequence[PolicyMoments | None] | None,
+    shared_y: np.ndarray,
+    own_y: np.ndarray,
+    evaluating: bool,
+) -> dict[int, _Progress]:
+    """Each active run's ``_Progress``; under policy iteration, with its moments prepared for these rows."""
+    progress = {}
+    reward_moments = fit.moments(fit.shared_rewards, fit.own.rewards) if evaluating else None
+    n_own = fit.own.rewards.shape[1]
+    for i, r in enumerate(fit.active):
+        if not evaluating:
+            progress[r] = _Progress(runs[r], None, np.zeros(0, np.int8), np.zeros(0))
+            continue
+        assert reward_moments is not None
+        kept = None if policy_moments is None else policy_moments[r]
+        moments = PolicyMoments() if kept is None else kept
+        moments.prepare(shared, own[r], fit.n_actions, fit.k)
+        shared_codes = moments.shared_codes
+        if fit.shared is not None and fit.shared.order is not None:
+            shared_codes = shared_codes[fit.shared.order]
+        own_codes = np.full(n_own, none_code(fit.n_actions), dtype=np.int8)
+        own_codes[: len(moments.own_codes)] = moments.own_codes
+        codes = np.concatenate([shared_codes, own_codes])
+        progress[r] = _Progress(runs[r], moments, codes, reward_moments[i])
+        progress[r].kept = kept is not None
+    return progress
+
+
+def _next_thetas(
+    fit: _BatchedFit,
+    progress: dict[int, _Progress],
+    theta: np.ndarray,
+    shared_y: np.ndarray,
+    own_y: np.ndarray,
+    stop_rule: str,
+    tol: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """
+    Each active run's next theta, and whether it is a fitted iteration (else a policy evaluation, or a
+    restart from theta0 when policy iteration is given up).
+    """
+    step_theta = fit.projected(theta, shared_y, own_y)
+    fitted = np.ones(len(fit.active), dtype=bool)
+    will_stop = _theta_change(theta, step_theta, tol)[0] if stop_rule == "theta" else None
+    evaluating = []
+    for i, r in enumerate(fit.active):
+        state = progress[r]
+        if state.iterating:
+            continue
+        if will_stop is not None:
+            evaluate = not will_stop[i]  # the fitted iteration would meet the rule: take it
+        else:
+            evaluate = state.last == "fitted" or (state.last == "evaluated" and not state.close)
+        if evaluate:
+            evaluating.append(i)
+        else:
+            state.last = "fitted"
+    if not evaluating:
+        return step_theta, fitted
+    for i, codes in zip(evaluating, fit.codes(np.array(evaluating)), strict=True):
+        state = progress[fit.active[i]]
+        # Moments kept across fits are updated for all the fits to come; fresh ones only for this one.
+        cost = np.count_nonzero(codes != state.codes) * (fit.n_actions * fit.k + 2)
+        if not state.kept and cost > MAX_UPDATE_PASSES * state.run.n_rows * fit.n_actions:
+            # The update would cost more than the passes it saves: the fitted iterations, from here on.
+            state.iterating, state.last = True, "fitted"
+            continue
+        solution = _policy_step(fit, i, state, theta[i], codes, fit.gamma)
+        fitted[i] = False
+        if solution is None:
+            # Policy iteration given up: the fitted iterations from the warm start, as if from the beginning.
+            state.iterating, state.last = True, "restart"
+            step_theta[i] = state.run.theta0
+        else:
+            state.evaluations += 1
+            state.last = "evaluated"
+            step_theta[i] = solution
+    return step_theta, fitted
+
+
+def _keep_policy_moments(
+    fit: _BatchedFit, progress: dict[int, _Progress], shared: FQIRows | None, runs: list[_Run]
+) -> None:
+    """Write each run's codes back to its ``PolicyMoments`` in the rows' stored order, for the next fit."""
+    for state in progress.values():
+        moments = state.policy_moments
+        if moments is None:
+            continue
+        shared_codes = state.codes[: fit.n_shared]
+        if fit.shared is not None and fit.shared.order is not None:
+            stored = np.empty_like(shared_codes)
+            stored[fit.shared.order] = shared_codes
+            shared_codes = stored
+        n_own = 0 if state.run.own is None else state.run.own.n_transitions
+        moments.shared_codes = shared_codes.copy()
+        moments.own_codes = state.codes[fit.n_shared : fit.n_shared + n_own].copy()

@@ -19,6 +19,7 @@ from sb3_trlsd.fqi.linear import LinearFQISolver
 from sb3_trlsd.fqi.targets import (
     DEFAULT_MLP_ITERATIONS,
     DEFAULT_RIDGE,
+    DEFAULT_SOLVER,
     DEFAULT_STOP_RULE,
     DEFAULT_TOL,
     FQIResult,
@@ -80,6 +81,7 @@ def fit_mlp_fqi(
     ridge: float = DEFAULT_RIDGE,
     generator: th.Generator | None = None,
     stop_rule: str = DEFAULT_STOP_RULE,
+    solver: str = DEFAULT_SOLVER,
 ) -> FQIResult:
     """
     Fitted-Q Iteration with a network whose last layer is linear, trained in place from its current weights:
@@ -90,9 +92,9 @@ def fit_mlp_fqi(
        return of ``return_bounds``, so that a kept ``optimizer``'s moments stay in scale as the optimistic
        rewards shrink;
     2. the fitted iterations: linear FQI of the output layer on the features Phi(s) = [h(s), 1] of the
-       hidden layers, Q(s, a) = theta_a . Phi(s) (eq. 3-4, ``LinearFQISolver`` in float64), warm-started from
-       the current output layer. The iterations stop by ``stop_rule``, or after ``max_iterations`` (with an
-       ``FQICapWarning``).
+       hidden layers, Q(s, a) = theta_a . Phi(s) (eq. 3-4, ``LinearFQISolver`` in float64, by ``solver``),
+       warm-started from the current output layer. The iterations stop by ``stop_rule``, or after
+       ``max_iterations`` (with an ``FQICapWarning``).
 
     Deterministic given the network's weights, the optimizer's state and ``generator``.
 
@@ -114,6 +116,8 @@ def fit_mlp_fqi(
     :param ridge: Tikhonov regularisation of the output layer's per-action projections (> 0)
     :param generator: CPU torch generator of the minibatch shuffling (global RNG if None)
     :param stop_rule: stopping rule of the fitted iterations, ``"theta"`` (default) or ``"targets"`` (see
+        ``fit_linear_fqi_runs``)
+    :param solver: how the output layer's fixed point is reached, one of ``SOLVERS`` (see
         ``fit_linear_fqi_runs``)
     :return: the fitted iterations run, the RMS Bellman residual of the final Q and whether the stopping rule
         was met
@@ -157,12 +161,18 @@ def fit_mlp_fqi(
 
     hidden = network[:-1]
     phi, next_phi = _features(hidden, x), _features(hidden, x_next)
-    solver = LinearFQISolver(phi.shape[1], output.out_features, ridge=ridge)
-    solver.extend(phi, a[:, 0].cpu().numpy(), next_phi, th.as_tensor(terminated).cpu().numpy())
+    layer_rows = LinearFQISolver(phi.shape[1], output.out_features, ridge=ridge)
+    layer_rows.extend(phi, a[:, 0].cpu().numpy(), next_phi, th.as_tensor(terminated).cpu().numpy())
     with th.no_grad():
         theta0 = th.cat([output.weight, output.bias[:, None]], dim=1).double().cpu().numpy()
-    result = solver.fit(
-        rewards, gamma=gamma, theta0=theta0, max_iterations=max_iterations, tol=tol, stop_rule=stop_rule
+    result = layer_rows.fit(
+        rewards,
+        gamma=gamma,
+        theta0=theta0,
+        max_iterations=max_iterations,
+        tol=tol,
+        stop_rule=stop_rule,
+        solver=solver,
     )
     assert result.theta is not None
     with th.no_grad():
@@ -173,4 +183,5 @@ def fit_mlp_fqi(
         bellman_residual=result.bellman_residual,
         converged=result.converged,
         change=result.change,
+        policy_evaluations=result.policy_evaluations,
     )

@@ -115,6 +115,7 @@ class Lockstep:
             max_iterations=model.config.fqi_max_iterations,
             tol=model.config.fqi_tolerance,
             stop_rule=model.config.fqi_stop,
+            solver=model.config.fqi_solver,
             exploration=model.config.exploration,
             on_refit=self._record_refit,
         )

@@ -24,6 +24,10 @@ The choices, with the options a careful reader of the paper could defend (today'
 8. R~ of an unvisited cell in the discrete setting (``tabular_unvisited``): eq. 10 with the count floored
    (an unvisited cell outranks every visited one), or a value, R-MAX's R_max = 1.
 
+Besides those choices, how each refit reaches Fitted-Q's fixed point (``fqi_solver``, a name of
+``sb3_trlsd.fqi.SOLVERS``, None for the policy's): exact evaluations of the greedy policy
+(``"policy_iteration"``, the linear Q's default) or the fitted iterations alone (``"iterations"``).
+
 Presets: today's choices (``"as-built"``: the library's defaults), one preset per single change from them,
 and the study's best-supported combination (``"no-restarts"``: the online phases without restarts), which
 ``reproduce`` runs unless told otherwise (``DEFAULT_PROTOCOL``). A
@@ -39,6 +43,7 @@ import math
 from dataclasses import asdict, dataclass, fields, replace
 from typing import Any
 
+from sb3_trlsd.fqi import SOLVERS
 from sb3_trlsd.reward_heads.base import DEFAULT_LOG_COUNT_RULE, DEFAULT_W_FLOOR, check_log_count_rule
 from sb3_trlsd.task_learner import FIRST_FIT_RULES
 from sb3_trlsd_envs.maze import check_start
@@ -97,6 +102,8 @@ class Protocol:
     :param first_fit: when a task is first fitted, one of ``FIRST_FIT_RULES``
     :param source_sets: ``"per_batch"`` (a source set shared by the runs of a batch) or ``"per_run"``
     :param tabular_unvisited: R~ of an unvisited cell of the tabular heads (None: eq. 10 with the floor)
+    :param fqi_solver: how a refit reaches Fitted-Q's fixed point, one of ``sb3_trlsd.fqi.SOLVERS`` (None:
+        the policy's)
     """
 
     online_termination_prob: float = 0.02
@@ -108,6 +115,7 @@ class Protocol:
     first_fit: str = "first_step"
     source_sets: str = "per_batch"
     tabular_unvisited: float | None = None
+    fqi_solver: str | None = None
 
     def __post_init__(self) -> None:
         if not 0 <= self.online_termination_prob <= 1:
@@ -127,6 +135,8 @@ class Protocol:
             raise ValueError(f"first_fit must be one of {list(FIRST_FIT_RULES)}, got {self.first_fit!r}")
         if self.source_sets not in SOURCE_SET_RULES:
             raise ValueError(f"source_sets must be one of {list(SOURCE_SET_RULES)}, got {self.source_sets!r}")
+        if self.fqi_solver is not None and self.fqi_solver not in SOLVERS:
+            raise ValueError(f"fqi_solver must be one of {list(SOLVERS)}, got {self.fqi_solver!r}")
 
     def choices(self) -> dict[str, Any]:
         """The choices as a dict (for a figure's JSON)."""
@@ -164,11 +174,11 @@ class Protocol:
 
     def model_kwargs(self, reward_head: str) -> dict[str, Any]:
         """
-        Keyword arguments of a ``TRLSD`` model with the named head: ``gamma``, ``first_fit`` and
-        ``reward_head_kwargs`` (``head_kwargs``), with the paper's features (``"paper"``: 5 x 5 RBFs of width
-        0.2 on the maze), Fitted-Q's stopping rule on theta, a refit as soon as the trigger fires, the first
-        of tied greedy actions and the greedy policy throughout (no epsilon-greedy steps), which the
-        library's defaults are not.
+        Keyword arguments of a ``TRLSD`` model with the named head: ``gamma``, ``first_fit``,
+        ``reward_head_kwargs`` (``head_kwargs``) and ``fqi_solver``, with the paper's features (``"paper"``:
+        5 x 5 RBFs of width 0.2 on the maze), Fitted-Q's stopping rule on theta, a refit as soon as the
+        trigger fires, the first of tied greedy actions and the greedy policy throughout (no epsilon-greedy
+        steps), which the library's defaults are not.
 
         :param reward_head: a head name ``TRLSD`` takes
         """
@@ -178,6 +188,7 @@ class Protocol:
             "reward_head_kwargs": self.head_kwargs(reward_head),
             "feature_map": "paper",
             "fqi_stop": "theta",
+            "fqi_solver": self.fqi_solver,
             "refit_growth": 0.0,
             "tie_break": "first",
             "exploration_initial_eps": 0.0,
@@ -332,6 +343,13 @@ PRESETS: dict[str, Preset] = {
             "single changes that bring the paper's orderings back in Figures 5-8, read together; neither "
             "restart is stated for an online phase",
             combines=("no-online-restarts", "multitask-continue"),
+        ),
+        Preset(
+            "policy-iteration",
+            Protocol(fqi_solver="policy_iteration"),
+            "each refit reaches Fitted-Q's fixed point by exact evaluations of the greedy policy (LSTD-Q)",
+            "the paper fits by Fitted-Q Iteration without saying how far: policy iteration reaches the same "
+            "fixed point exactly, in fewer passes over the buffer",
         ),
         Preset(
             "tabular-unvisited-r-max",
