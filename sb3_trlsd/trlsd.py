@@ -27,9 +27,9 @@ from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedul
 from sb3_trlsd.buffers import SharedDynamicsReplayBuffer
 from sb3_trlsd.callbacks import TaskView, has_tensorboard, log_hyperparameters, log_task_picture
 from sb3_trlsd.config import LearnerBuilder, TRLSDConfig, check_discount
-from sb3_trlsd.data import Transitions
 from sb3_trlsd.engine import Engine, Run, explore_rng, tie_rng
 from sb3_trlsd.feature_maps import FeatureMap
+from sb3_trlsd.foreign_data import TransitionSource, rows_to_store
 from sb3_trlsd.fqi import FQIResult
 from sb3_trlsd.observations import StateBoxMonitor, check_action_space, split_observation, state_space_of
 from sb3_trlsd.persistence import BUFFER_ROWS, empty_rows, read_replay_buffer
@@ -181,7 +181,9 @@ class TRLSD(OffPolicyAlgorithm):
         Gymnasium's r(s, a, s'), for the heads that can learn it and ``"next_state"`` for the ``"known"``
         and tabular heads)
     :param source_transitions: source set loaded (rewards discarded) at the first ``learn``: a number of
-        random transitions (the paper's 25,000) from ``source_env``, or the path of a ``Transitions`` .npz
+        random transitions (the paper's 25,000) from ``source_env``, the path of a ``Transitions`` .npz or of
+        a ``save_replay_buffer`` .pkl (unpickled: load only files you made), or the id of a local Minari
+        dataset (see ``load_transitions``)
     :param source_seed: seed of the collection of ``source_transitions`` (None: ``seed``)
     :param source_env: an env (or a function making one) to collect them from; None: a copy of the env as
         given, its wrappers kept
@@ -435,25 +437,42 @@ class TRLSD(OffPolicyAlgorithm):
         return {task: learner.refits for task, learner in self.task_learners.items()}
 
     # --------------------------------------------------------------- transitions
-    def load_transitions(self, data: Transitions | str | os.PathLike, keep_rewards: bool = False) -> None:
+    def load_transitions(
+        self, data: TransitionSource, keep_rewards: bool = False, task: int | None = None
+    ) -> None:
         """
-        Add transitions collected elsewhere to the shared buffer (the paper's source set Xi).
+        Add transitions collected elsewhere to the shared buffer (the paper's source set Xi): ``Transitions``
+        (see ``collect_transitions``) or the path of their ``.npz``; an SB3 replay buffer (``ReplayBuffer`` of
+        any ``n_envs``, ``DictReplayBuffer``, TRLSD's own), e.g. ``dqn.replay_buffer``, or the path of a
+        ``save_replay_buffer`` ``.pkl``; a ``minari.MinariDataset`` or the id of a local one; or a list of
+        these. A ``.pkl`` is unpickled, which runs the code it names: load only files you made.
 
-        :param data: transitions (see ``collect_transitions``) or the path of a ``.npz`` saved from them
+        Each row's task is ``task`` if given, else its observation's (a ``{"state", "task"}`` Dict) or its
+        ``Transitions.tasks`` entry; rows of Box observations carry none. With ``keep_rewards``, a row teaches
+        its task's head: on a single-task env (Box observations) rows of another task are refused and rows
+        without a task warn that their rewards will be learnt as this task's; on a multi-task env rows without
+        a task are refused (give ``task``). See ``sb3_trlsd.foreign_data``.
+
+        :param data: the transitions, in any of the forms above
         :param keep_rewards: also fit each task's reward head on the rewards of its transitions; False
             (the paper's setting) uses them for the dynamics only
+        :param task: the task the rows were collected on (None: each row's own, where it has one)
+        :raises TypeError: for another kind of ``data``, listing the accepted ones
+        :raises ValueError: for rows that do not fit the env, or whose rewards belong to no task of it
         """
-        transitions = data if isinstance(data, Transitions) else Transitions.load(data)
-        self._state_box.check(np.concatenate([transitions.states, transitions.next_states]), stacklevel=2)
-        self.replay_buffer.add_transitions(transitions, keep_rewards=keep_rewards)
-        if keep_rewards:
-            for task in np.unique(transitions.tasks):
-                rows = transitions.tasks == task
-                learner = self.task_learner(task)
-                inputs = learner.inputs(
-                    transitions.states[rows], transitions.actions[rows], transitions.next_states[rows]
-                )
-                learner.head.update(inputs, transitions.rewards[rows])
+        for transitions, rewarded in rows_to_store(
+            data, task, keep_rewards, self.observation_space, self.action_space
+        ):
+            self._state_box.check(np.concatenate([transitions.states, transitions.next_states]), stacklevel=2)
+            self.replay_buffer.add_transitions(transitions, keep_rewards=rewarded)
+            if rewarded:
+                for row_task in np.unique(transitions.tasks):
+                    rows = transitions.tasks == row_task
+                    learner = self.task_learner(row_task)
+                    inputs = learner.inputs(
+                        transitions.states[rows], transitions.actions[rows], transitions.next_states[rows]
+                    )
+                    learner.head.update(inputs, transitions.rewards[rows])
         # New dynamics data: every fitted task is refitted at the next training round.
         for learner in self.task_learners.values():
             learner.due = learner.due or learner.fitted
