@@ -11,7 +11,7 @@ import os
 import zipfile
 import zlib
 from dataclasses import dataclass, fields
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
 import numpy as np
@@ -22,6 +22,10 @@ from tqdm.auto import tqdm
 
 from sb3_trlsd.atomic_files import atomic_write
 from sb3_trlsd.observations import split_observation, state_space_of
+
+if TYPE_CHECKING:
+    from minari import MinariDataset
+    from stable_baselines3.common.buffers import ReplayBuffer
 
 __all__ = ["Transitions", "as_flags", "collect_transitions", "load_npz_arrays"]
 
@@ -172,6 +176,40 @@ class Transitions:
             return cls(**{name: arrays[name] for name in names})
         except ValueError as error:
             raise ValueError(f"{os.fspath(path)!r} is not a valid transitions file: {error}") from error
+
+    @classmethod
+    def from_replay_buffer(cls, buffer: ReplayBuffer, task: int | None = None) -> Transitions:
+        """
+        The transitions an SB3 replay buffer holds (``model.replay_buffer``, or SB3's ``load_from_pkl`` of a
+        ``save_replay_buffer`` file): a ``ReplayBuffer`` of any ``n_envs``, with ``optimize_memory_usage`` or
+        not, a ``DictReplayBuffer`` of ``{"state", "task"}`` observations, or TRLSD's own buffers. Each env's
+        rows come in turn, oldest first; time limits stay truncations (see ``sb3_trlsd.foreign_data``).
+
+        :param buffer: the buffer
+        :param task: the task every row was collected on; None: each row's observed task, which a buffer of
+            Box observations does not have (then give it)
+        :return: the transitions
+        :raises ValueError: for a buffer of other spaces, or of Box observations without ``task``
+        """
+        from sb3_trlsd.foreign_data import replay_buffer_transitions  # it imports this module
+
+        return replay_buffer_transitions(buffer, task)
+
+    @classmethod
+    def from_minari(cls, dataset: MinariDataset, task: int | None = None) -> Transitions:
+        """
+        The transitions of a Minari dataset's episodes (``minari.load_dataset(id)``), in order: its
+        observations a state Box or a ``{"state", "task"}`` Dict, its actions Discrete.
+
+        :param dataset: the dataset
+        :param task: the task every row was collected on; None: each row's observed task, which a dataset of
+            Box observations does not have (then give it)
+        :return: the transitions
+        :raises ValueError: for a dataset of other spaces, or of Box observations without ``task``
+        """
+        from sb3_trlsd.foreign_data import minari_transitions  # it imports this module
+
+        return minari_transitions(dataset, task)
 
 
 def load_npz_arrays(path: str | os.PathLike) -> dict[str, np.ndarray]:

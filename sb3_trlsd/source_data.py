@@ -1,5 +1,5 @@
 """The source set a ``TRLSD`` model's ``source_transitions`` argument names: collected from the user's env as
-given (wrappers kept), or read from a file."""
+given (wrappers kept), or read from a file or a local Minari dataset."""
 
 from __future__ import annotations
 
@@ -13,6 +13,7 @@ from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.vec_env import VecEnv
 
 from sb3_trlsd.data import Transitions, collect_transitions
+from sb3_trlsd.foreign_data import read_rows
 
 __all__ = ["SourceEnv", "check_source_transitions", "source_env_of", "source_transitions_of"]
 
@@ -22,7 +23,8 @@ SourceSpec = int | str | os.PathLike
 
 def check_source_transitions(source: SourceSpec | None) -> None:
     """
-    Reject a ``source_transitions`` setting that is not None, a number >= 1 or a path, naming it.
+    Reject a ``source_transitions`` setting that is not None, a number >= 1, a path or a Minari dataset id,
+    naming it.
 
     :raises ValueError: for any other value
     """
@@ -33,7 +35,8 @@ def check_source_transitions(source: SourceSpec | None) -> None:
     )
     if not ok:
         raise ValueError(
-            f"source_transitions must be None, a number >= 1 or the path of a .npz, got {source!r}"
+            "source_transitions must be None, a number >= 1, the path of a Transitions .npz or of a "
+            f"save_replay_buffer .pkl, or the id of a local Minari dataset, got {source!r}"
         )
 
 
@@ -80,16 +83,19 @@ def source_transitions_of(
 ) -> Transitions:
     """
     The transitions a ``source_transitions`` setting names: that many random transitions from
-    ``source_env_of(source_env, env)``, or the ``.npz`` at that path.
+    ``source_env_of(source_env, env)``, or those of the file at that path (a ``Transitions`` ``.npz``, a
+    ``save_replay_buffer`` ``.pkl``, which is unpickled) or of the local Minari dataset of that id. Their
+    rewards are not learnt (the caller discards them), so their tasks, which rows of Box observations do not
+    have, are not asked for.
 
-    :param source: the setting: a number of transitions, or a path
+    :param source: the setting: a number of transitions, a path or a Minari dataset id
     :param source_env: the model's ``source_env`` setting
     :param env: the model's (vectorised) env
     :param seed: the seed of the collection
     :return: the transitions (their rewards are the env's; the caller decides whether to keep them)
     """
     if not isinstance(source, (int, np.integer)):
-        return Transitions.load(source)
+        return read_rows(source).transitions
     collecting = source_env_of(source_env, env)
     try:
         return collect_transitions(collecting, int(source), seed=seed)

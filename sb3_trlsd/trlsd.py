@@ -29,9 +29,10 @@ from sb3_trlsd.action_choice import explore_rng, tie_rng
 from sb3_trlsd.atomic_files import save_file
 from sb3_trlsd.buffers import SharedDynamicsReplayBuffer
 from sb3_trlsd.config import LearnerBuilder, TRLSDConfig, check_algorithm_settings
-from sb3_trlsd.data import Transitions, as_flags
+from sb3_trlsd.data import as_flags
 from sb3_trlsd.engine import Engine, Run, RunRows
 from sb3_trlsd.feature_maps import FeatureMap
+from sb3_trlsd.foreign_data import TransitionSource, rows_to_store
 from sb3_trlsd.fqi import FQIResult
 from sb3_trlsd.observations import (
     StateBoxMonitor,
@@ -126,7 +127,9 @@ class TRLSD(OffPolicyAlgorithm):
     :param reward_head_kwargs: extra arguments of the named reward heads
     :param reward_timing: what of a transition its reward belongs to (``"auto"``: the env's, else the step)
     :param source_transitions: source set loaded (rewards discarded) at the first ``learn``: a number of
-        random transitions (the paper's 25,000) from ``source_env``, or the path of a ``Transitions`` .npz
+        random transitions (the paper's 25,000) from ``source_env``, the path of a ``Transitions`` .npz or of
+        a ``save_replay_buffer`` .pkl (unpickled: load only files you made), or the id of a local Minari
+        dataset (see ``load_transitions``)
     :param source_seed: seed of the collection of ``source_transitions`` (None: ``seed``)
     :param source_env: an env (or a function making one) to collect them from; None: a copy of the env as
         given, its wrappers kept
@@ -347,18 +350,35 @@ class TRLSD(OffPolicyAlgorithm):
         return self.reward_fn or env_reward_fn(self.env, several_tasks)
 
     # --------------------------------------------------------------- transitions
-    def load_transitions(self, data: Transitions | str | os.PathLike, keep_rewards: bool = False) -> None:
+    def load_transitions(
+        self, data: TransitionSource, keep_rewards: bool = False, task: int | None = None
+    ) -> None:
         """
-        Add transitions collected elsewhere to the shared buffer (the paper's source set Xi).
+        Add transitions collected elsewhere to the shared buffer (the paper's source set Xi): ``Transitions``
+        (see ``collect_transitions``) or the path of their ``.npz``; an SB3 replay buffer (``ReplayBuffer`` of
+        any ``n_envs``, ``DictReplayBuffer``, TRLSD's own), e.g. ``dqn.replay_buffer``, or the path of a
+        ``save_replay_buffer`` ``.pkl``; a ``minari.MinariDataset`` or the id of a local one; or a list of
+        these. A ``.pkl`` is unpickled, which runs the code it names: load only files you made.
 
-        :param data: transitions (see ``collect_transitions``) or the path of a ``.npz`` saved from them
+        Each row's task is ``task`` if given, else its observation's (a ``{"state", "task"}`` Dict) or its
+        ``Transitions.tasks`` entry; rows of Box observations carry none. With ``keep_rewards``, a row teaches
+        its task's head: on a single-task env (Box observations) rows of another task are refused and rows
+        without a task warn that their rewards will be learnt as this task's; on a multi-task env rows without
+        a task are refused (give ``task``). See ``sb3_trlsd.foreign_data``.
+
+        :param data: the transitions, in any of the forms above
         :param keep_rewards: also fit each task's reward head on the rewards of its transitions; False
             (the paper's setting) uses them for the dynamics only
-        :raises ValueError: when they do not fit in the buffer next to its rows (``buffer_size``)
+        :param task: the task the rows were collected on (None: each row's own, where it has one)
+        :raises TypeError: for another kind of ``data``, listing the accepted ones
+        :raises ValueError: for rows that do not fit the env or the buffer beside its rows
+            (``buffer_size``), or whose rewards belong to no task of it
         """
-        transitions = data if isinstance(data, Transitions) else Transitions.load(data)
-        self._state_box.check(np.concatenate([transitions.states, transitions.next_states]), stacklevel=2)
-        self.engine.load(0, transitions, keep_rewards)
+        for transitions, rewarded in rows_to_store(
+            data, task, keep_rewards, self.observation_space, self.action_space
+        ):
+            self._state_box.check(np.concatenate([transitions.states, transitions.next_states]), stacklevel=2)
+            self.engine.load(0, transitions, rewarded)
 
     # ------------------------------------------------------ the online loop (SB3)
     def _sample_action(

@@ -265,7 +265,14 @@ def suite_command(args: argparse.Namespace) -> int:
     """
     from sb3_trlsd_lab.benchmarks.mo_suite.families import FAMILIES as SUITE_FAMILIES
     from sb3_trlsd_lab.benchmarks.mo_suite.families import available
-    from sb3_trlsd_lab.benchmarks.mo_suite.suite import goal_table, run_suite, suite_table
+    from sb3_trlsd_lab.benchmarks.mo_suite.sources import SOURCE_POLICIES
+    from sb3_trlsd_lab.benchmarks.mo_suite.suite import (
+        goal_table,
+        protocol_table,
+        run_suite,
+        suite_name,
+        suite_table,
+    )
 
     if args.family == "all":
         families = [name for name, family in SUITE_FAMILIES.items() if available(family)]
@@ -280,7 +287,14 @@ def suite_command(args: argparse.Namespace) -> int:
     cache = None if args.no_cache else usable_directory(args.cache or out / "runs", "--cache")
     done = []
 
-    def run_one(name: str) -> None:
+    jobs = {
+        suite_name(name, policy): (name, policy)
+        for policy in dict.fromkeys(args.source_policy)
+        for name in families
+    }
+
+    def run_one(stem: str) -> None:
+        name, source_policy = jobs[stem]
         data = run_suite(
             name,
             out,
@@ -291,23 +305,30 @@ def suite_command(args: argparse.Namespace) -> int:
             cache=cache,
             n_source=args.source,
             n_online=args.online,
+            source_policy=source_policy,
         )
         done.append(data)
-        print(
-            f"mo_suite_{name} done in {data['wall_time_seconds']:.0f} s\n\n{suite_table([data])}\n",
-            flush=True,
-        )
+        print(f"{stem} done in {data['wall_time_seconds']:.0f} s\n\n{suite_table([data])}\n", flush=True)
 
-    status = run_in_turn("benchmark-suite", families, run_one, cache)
+    status = run_in_turn("benchmark-suite", list(jobs), run_one, cache)
+
     # The tables of every family whose JSON is in OUT, this command's and earlier ones' (run one family at a
     # time, or rerun one): the families in the suite's order.
-    written = [out / f"mo_suite_{name}.json" for name in SUITE_FAMILIES]
-    datas = [json.loads(path.read_text()) for path in written if path.exists()]
+    def stored(source_policy: str) -> list[dict]:
+        paths = [out / f"{suite_name(name, source_policy)}.json" for name in SUITE_FAMILIES]
+        return [json.loads(path.read_text()) for path in paths if path.exists()]
+
+    datas = stored("random")
     if done and datas:
         table = f"{suite_table(datas)}\n\n{goal_table(datas)}"
         with atomic_write(out / "mo_suite_table.md", "w") as file:
             file.write(table + "\n")
         print(table)
+    both = [data for policy in SOURCE_POLICIES for data in stored(policy)]
+    if done and any(data["parameters"].get("source_policy") == "trained" for data in both):
+        protocols = protocol_table(both)
+        (out / "mo_suite_protocols.md").write_text(protocols + "\n")
+        print(f"\n{protocols}")
     return status
 
 

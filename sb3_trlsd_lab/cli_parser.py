@@ -12,6 +12,7 @@ from sb3_trlsd.zoo import ZOO_SCRIPTS
 from sb3_trlsd_lab.benchmarks.benchmark import FAMILIES
 from sb3_trlsd_lab.benchmarks.mo_suite.families import FAMILIES as SUITE_FAMILIES
 from sb3_trlsd_lab.benchmarks.mo_suite.peers import METHODS as SUITE_METHODS
+from sb3_trlsd_lab.benchmarks.mo_suite.sources import SOURCE_POLICIES
 from sb3_trlsd_lab.execution.backends import BACKENDS
 from sb3_trlsd_lab.execution.protocols import DEFAULT_PROTOCOL, PRESETS
 from sb3_trlsd_lab.registry import FIGURES, STUDIES
@@ -211,7 +212,8 @@ def build_parser() -> argparse.ArgumentParser:
         description="Each MO-Gymnasium env is a family of tasks sharing its dynamics, one per weight "
         "vector w of its reward vector (reward w . r_vec). Every method learns the same held-out target "
         "weights with the same seeds, after the same random source transitions collected under other "
-        "weights, for the family's online budget; the score is the mean scalar reward per online step. "
+        "weights (or a DQN's trained on them: --source-policy), for the family's online budget; the score "
+        "is the mean scalar reward per online step. "
         "Writes mo_suite_<family>.csv, .png and .json, and mo_suite_table.md: the tables of every family "
         "whose JSON is in --out, this command's and earlier ones'. Needs sb3-trlsd[benchmarks].",
     )
@@ -233,6 +235,16 @@ def build_parser() -> argparse.ArgumentParser:
     )
     suite.add_argument(
         "--source", type=positive_int, default=None, help="source transitions (default: 20,000)"
+    )
+    suite.add_argument(
+        "--source-policy",
+        nargs="+",
+        choices=list(SOURCE_POLICIES),
+        default=["random"],
+        help="what collects the source: random, a random policy (mo_suite_<family>.*); trained, SB3's DQN "
+        "trained on the source weights for --source steps, its replay buffer the source "
+        "(mo_suite_trained_<family>.*); both, one after the other (default: random). mo_suite_protocols.md "
+        "sets them side by side",
     )
     suite.add_argument("--online", type=positive_int, default=None, help="online steps (default: 1,000)")
     add_cache_options(suite)

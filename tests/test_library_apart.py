@@ -1,12 +1,14 @@
-"""The library stands apart from its lab: ``import sb3_trlsd`` loads no lab module and none of the lab's
-dependencies (Ray, joblib, matplotlib), so a user of the algorithm needs none of them."""
+"""The library stands apart from its lab: ``import sb3_trlsd`` loads no lab module, none of the lab's
+dependencies (Ray, joblib, matplotlib) and not Minari (an optional extra), so a user of the algorithm needs
+none of them."""
 
 import json
 import subprocess
 import sys
 
-# What importing the library must not load: the lab and the dependencies of the ``experiments`` extra.
-NOT_LOADED = ("sb3_trlsd_lab", "ray", "joblib", "matplotlib")
+# What importing the library must not load: the lab, the dependencies of the ``experiments`` extra, and
+# those of the ``minari`` extra (loaded only for a Minari dataset).
+NOT_LOADED = ("sb3_trlsd_lab", "ray", "joblib", "matplotlib", "minari", "h5py", "jax")
 
 
 def loaded_packages(code: str) -> set[str]:
@@ -18,10 +20,24 @@ def loaded_packages(code: str) -> set[str]:
     return set(json.loads(result.stdout.splitlines()[-1]))
 
 
-def test_importing_the_library_loads_no_lab_ray_joblib_or_matplotlib():
+def test_importing_the_library_loads_no_lab_ray_joblib_matplotlib_or_minari():
     loaded = loaded_packages("import sb3_trlsd, gymnasium as gym\ngym.make('TRLSD/SharedDynamicsMaze-v0')")
     assert "sb3_trlsd" in loaded and "sb3_trlsd_envs" in loaded
     assert not loaded & set(NOT_LOADED), f"import sb3_trlsd loaded {sorted(loaded & set(NOT_LOADED))}"
+
+
+def test_loading_transitions_that_are_not_minaris_loads_no_minari():
+    """Transitions and an SB3 buffer go in without Minari, whose extra a user of them need not install."""
+    code = (
+        "import gymnasium as gym\n"
+        "from stable_baselines3 import DQN\n"
+        "from sb3_trlsd import TRLSD, collect_transitions\n"
+        "env = gym.make('TRLSD/SharedDynamicsMaze-v0')\n"
+        "model = TRLSD('LinearPolicy', env)\n"
+        "model.load_transitions(collect_transitions(env, 10, seed=0))\n"
+        "model.load_transitions(DQN('MultiInputPolicy', env, learning_starts=100).learn(10).replay_buffer)\n"
+    )
+    assert not loaded_packages(code) & {"minari", "h5py", "jax"}
 
 
 def test_the_envs_load_matplotlib_only_to_draw():

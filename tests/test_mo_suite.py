@@ -19,11 +19,18 @@ from sb3_trlsd_lab.benchmarks.mo_suite.families import (
     weight_split,
 )
 from sb3_trlsd_lab.benchmarks.mo_suite.peers import METHODS, SETTABLE, run_method
+from sb3_trlsd_lab.benchmarks.mo_suite.sources import (
+    offline_parameters,
+    source_of,
+    source_updates,
+    trained_source,
+)
 from sb3_trlsd_lab.benchmarks.mo_suite.suite import (
     family_scale,
     fraction_interval,
     goal_table,
     paired_gain,
+    protocol_table,
     reference_fraction,
     run_suite,
 )
@@ -248,3 +255,87 @@ def test_family_scale_is_the_range_of_the_means_or_twice_their_median_error():
     assert family_scale(spread, errors) == pytest.approx(0.4)
     assert family_scale(tied, errors) == pytest.approx(0.04)
     assert family_scale(np.zeros(3), np.zeros(3)) == 1.0
+
+
+def test_the_trained_source_is_the_buffer_of_a_dqn_trained_on_the_source_weights():
+    """Under the trained protocol a run's source is its DQN's replay buffer: one row per step it took, every
+    source weight drawn, each reward the weights of its row's task times the reward vector kept beside it,
+    and the DQN's parameters for the fine-tuned DQN; the same seed gives the same rows."""
+    family = FAMILIES["deep-sea-treasure-v0"]
+    source = trained_source(family, 400, seed=2)
+    data = source.transitions
+    assert len(data) == 400 and source.vector_rewards.shape == (400, 2)
+    assert set(np.unique(data.tasks).tolist()) <= set(family.tasks_of("source").tolist())
+    assert len(np.unique(data.tasks)) > 1
+    scalar = np.sum(family_weights(family)[data.tasks] * source.vector_rewards, axis=1)
+    np.testing.assert_allclose(data.rewards, scalar, rtol=1e-5, atol=1e-5)
+    assert data.terminations.any() and source.dqn_parameters is not None
+    assert {"q_net.q_net.0.weight", "q_net_target.q_net.0.weight"} <= set(source.dqn_parameters)
+    np.testing.assert_array_equal(trained_source(family, 400, seed=2).transitions.states, data.states)
+    with pytest.raises(ValueError, match="source_policy must be one of"):
+        source_of(family, "expert", 400, seed=2)
+
+
+def test_the_random_protocols_fine_tuned_dqn_starts_from_an_offline_dqn_on_the_random_rows():
+    """Under the random protocol there is no source DQN: one is trained offline on the random rows, its
+    target network updated as DQN's is (so it equals the online one after a last update, at a multiple of
+    the interval); it moved from where a fresh DQN starts."""
+    family = FAMILIES["deep-sea-treasure-v0"]
+    source = collect_source(family, 350, seed=0)
+    assert source_updates(350) == 250 and source.dqn_parameters is None
+    parameters = offline_parameters(family, source, seed=0)
+    fresh = offline_parameters(family, collect_source(family, 100, seed=0), seed=0)  # no gradient step
+    np.testing.assert_array_equal(
+        parameters["q_net_target.q_net.0.weight"], parameters["q_net.q_net.0.weight"]
+    )
+    assert not np.allclose(parameters["q_net.q_net.0.weight"], fresh["q_net.q_net.0.weight"])
+
+
+def test_a_small_trained_protocol_cell_shares_the_runs_without_a_source(tmp_path):
+    """Both protocols through the command line: the trained protocol writes its own files and the table of
+    the two side by side, and its methods without a source (the random policy here) are the random
+    protocol's runs, kept once: 2 runs x (2 methods of the random protocol + 1 trained-source job)."""
+    argv = ["benchmark-suite", "deep-sea-treasure-v0", "--runs", "2", "--workers", "1"]
+    argv += ["--methods", "random", "trlsd", "--source", "300", "--online", "40"]
+    argv += [
+        "--source-policy",
+        "random",
+        "trained",
+        "--out",
+        str(tmp_path),
+        "--cache",
+        str(tmp_path / "runs"),
+    ]
+    assert main(argv) == 0
+    trained = json.loads((tmp_path / "mo_suite_trained_deep-sea-treasure-v0.json").read_text())
+    plain = json.loads((tmp_path / "mo_suite_deep-sea-treasure-v0.json").read_text())
+    assert (
+        trained["parameters"]["source_policy"] == "trained"
+        and plain["parameters"]["source_policy"] == "random"
+    )
+    assert trained["results"]["random"] == plain["results"]["random"]
+    assert len(list((tmp_path / "runs").glob("*.npz"))) == 6
+    table = (tmp_path / "mo_suite_protocols.md").read_text().splitlines()
+    assert table[0].startswith("| family | method | random source: score")
+    assert [line.split(" | ")[1] for line in table[2:]] == ["TRLSD (defaults)", "random policy"]
+
+
+def test_the_protocol_table_puts_each_methods_two_sources_side_by_side():
+    """One row per family and method, the random source's cells then the trained one's, empty where a
+    protocol did not run the method."""
+
+    def summary(policy, scores):
+        results = {
+            method: {"score": {"mean": mean, "se": 0.01}, "gain_over_random": {"mean": mean, "se": 0.02}}
+            for method, mean in scores.items()
+        }
+        return {"parameters": {"family": "f", "source_policy": policy}, "results": results}
+
+    datas = [summary("random", {"trlsd": 0.5, "dqn": 0.1}), summary("trained", {"trlsd": 0.25})]
+    rows = protocol_table(datas).splitlines()[2:]
+    assert (
+        rows[0]
+        == "| f | TRLSD (defaults) | 0.500 ± 0.010 | +0.500 ± 0.020 | 0.250 ± 0.010 | +0.250 ± 0.020 |"
+    )
+    assert rows[1] == "| f | DQN (online only) | 0.100 ± 0.010 | +0.100 ± 0.020 |  |  |"
+    assert len(rows) == 2

@@ -360,10 +360,13 @@ class SourceSet:
 
     :param transitions: the transitions, rewards scalarised by their source task's weights
     :param vector_rewards: r_vec of each transition, (n, k)
+    :param dqn_parameters: the parameters of the DQN that collected them (a trained source), None for a
+        random policy's
     """
 
     transitions: Transitions
     vector_rewards: np.ndarray
+    dqn_parameters: dict[str, np.ndarray] | None = None
 
 
 def collect_source(family: Family, n: int, seed: int) -> SourceSet:

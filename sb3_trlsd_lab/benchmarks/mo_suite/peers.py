@@ -10,6 +10,13 @@ online step (``StepRewards``), whatever loop drives the env.
   reward box allows; 4 gradient steps per env step and a target update every 100 steps, as
   ``benchmarks/bench_relabelling_dqn.py``.
 - ``dqn-zero-source``: DQN with the source in its buffer, rewards zeroed.
+- ``dqn-finetuned``: the source's DQN learning the target: what a user with a DQN trained on other tasks
+  would try instead of TRLSD. Under the trained protocol (``sources.py``), the DQN that collected the source,
+  its Q-networks and its buffer (the source rows with their source rewards and tasks); under the random
+  protocol, a DQN trained offline on the random rows and their source rewards for as many gradient steps
+  (``sources.offline_parameters``), with those rows in its buffer. It then learns online as ``dqn`` does
+  (the same ``DQN_SETTINGS``: SB3's ``learn`` starts its exploration schedule again, as a second ``learn``
+  call does); the target task's one-hot input is new to its network.
 - ``sf-gpi``: successor features of the source tasks' policies with GPI (``sf_gpi.py``), on Fourier features
   of its own (``SF_FEATURE_WIDTH``). It is given the
   source transitions' reward VECTORS and the source weights, and sees the reward vector of each online
@@ -52,6 +59,7 @@ from sb3_trlsd_lab.benchmarks.mo_suite.families import (
     scalarised_tasks,
 )
 from sb3_trlsd_lab.benchmarks.mo_suite.sf_gpi import SuccessorFeaturesGPI
+from sb3_trlsd_lab.benchmarks.mo_suite.sources import load_dqn_parameters, offline_parameters, restore_rows
 from sb3_trlsd_lab.execution.runner import run_online
 
 __all__ = [
@@ -144,6 +152,23 @@ def _dqn(fill: Callable[[DQN, SourceSet, int], None] | None) -> Run:
         return int(model._n_updates), time.perf_counter() - start
 
     return run
+
+
+def _dqn_finetuned(
+    env: StepRewards, family: Family, source: SourceSet | None, seed: int, n_online: int
+) -> tuple[int, float]:
+    assert source is not None
+    parameters = source.dqn_parameters
+    if parameters is None:  # a random policy's rows: the DQN is trained on them offline first
+        parameters = offline_parameters(family, source, seed)
+    size = max(DQN_SETTINGS["buffer_size"], len(source.transitions) + n_online)
+    with one_torch_thread():
+        model = DQN("MultiInputPolicy", env, seed=seed, device="cpu", **{**DQN_SETTINGS, "buffer_size": size})
+        load_dqn_parameters(model, parameters)
+        restore_rows(model, source.transitions)
+        start = time.perf_counter()
+        model.learn(total_timesteps=n_online)
+    return int(model._n_updates), time.perf_counter() - start
 
 
 def _zero_rewards(model: DQN, source: SourceSet, task: int) -> None:
@@ -280,6 +305,7 @@ METHODS: dict[str, tuple[str, bool, Run]] = {
     "sf-gpi": ("SF + GPI (sees the reward vectors)", True, _sf_gpi),
     "dqn-relabelling": ("DQN + relabelling buffer", True, _dqn(_relabelled)),
     "dqn-zero-source": ("DQN, source with zero reward", True, _dqn(_zero_rewards)),
+    "dqn-finetuned": ("DQN fine-tuned from the source's DQN", True, _dqn_finetuned),
     "dqn": ("DQN (online only)", False, _dqn(None)),
     "random": ("random policy", False, _random),
 }

@@ -4,9 +4,12 @@ over processes by ``run_jobs``, aggregated as mean ± standard error and a 95% s
 of the mean, and written as ``mo_suite_<family>.csv`` (one row per run), ``.json`` (the aggregates, sizes,
 weights and timings) and ``.png`` (a bar per method with its interval).
 
-Run r targets evaluation weight r (modulo their number) with seed ``seed + r``; its source transitions
-(a random policy under the source weights) are collected with seed ``SOURCE_SEED + seed + r``, the same
-for every method. A run's score is the mean scalar reward w . r_vec per online step.
+Run r targets evaluation weight r (modulo their number) with seed ``seed + r``; its source transitions are
+collected with seed ``SOURCE_SEED + seed + r``, the same for every method, under one of two protocols
+(``sources.py``): a random policy under the source weights (``mo_suite_<family>``), or the replay buffer of
+a DQN trained on them (``mo_suite_trained_<family>``; each run's DQN is trained once, for all its methods).
+A run's score is the mean scalar reward w . r_vec per online step. ``protocol_table`` sets the two
+protocols side by side.
 """
 
 from __future__ import annotations
@@ -22,6 +25,7 @@ import numpy as np
 from sb3_trlsd.atomic_files import atomic_write
 from sb3_trlsd_lab.benchmarks.mo_suite.families import Family, collect_source, family_named
 from sb3_trlsd_lab.benchmarks.mo_suite.peers import METHODS, PeerResult, run_method
+from sb3_trlsd_lab.benchmarks.mo_suite.sources import SOURCE_POLICIES, trained_source
 from sb3_trlsd_lab.execution.jobs import run_jobs
 from sb3_trlsd_lab.paper.figures import new_figure, save_figure
 from sb3_trlsd_lab.paper.reporting import mean_and_standard_error, summary, write_json
@@ -30,12 +34,16 @@ from sb3_trlsd_lab.stats.statistics import aggregate_mean, mean_ratio
 
 __all__ = [
     "DEFAULT_RUNS",
+    "PROTOCOL_METHODS",
     "SOURCE_SEED",
     "family_scale",
     "goal_table",
+    "protocol_table",
     "run_suite",
+    "suite_name",
     "suite_run",
     "suite_table",
+    "trained_source_runs",
 ]
 
 DEFAULT_RUNS = 20
@@ -43,6 +51,29 @@ SOURCE_SEED = 10_000
 # Each TRLSD method -> the level it is measured against, above the random policy's: the same agent given the
 # source's true rewards.
 REFERENCES = {"trlsd": "trlsd-reward-given", "trlsd-mlp": "trlsd-mlp-reward-given"}
+# The methods ``protocol_table`` compares under the two source protocols.
+PROTOCOL_METHODS = ("trlsd", "dqn", "dqn-finetuned", "sf-gpi", "random")
+
+
+def suite_name(family_name: str, source_policy: str = "random") -> str:
+    """A family's file stem under a protocol: ``mo_suite_<family>``, or ``mo_suite_trained_<family>``."""
+    return (
+        f"mo_suite_{family_name}" if source_policy == "random" else f"mo_suite_{source_policy}_{family_name}"
+    )
+
+
+def _row(run: int, task: int, run_seed: int, result: PeerResult, n_online: int) -> dict[str, Any]:
+    """A run's row: task, score, seconds, online ms per step, updates and reward curve."""
+    return {
+        "run": run,
+        "task": task,
+        "seed": run_seed,
+        "score": float(result.rewards.mean()),
+        "seconds": result.seconds,
+        "online_ms_per_step": 1000.0 * result.online_seconds / n_online,
+        "updates": result.updates,
+        "rewards": result.rewards.tolist(),
+    }
 
 
 def suite_run(
@@ -68,7 +99,8 @@ def suite_run(
     :param n_online: online transitions
     :param settings: the methods of ``peers.SETTABLE`` only: TRLSD's keyword arguments other than its
         defaults (a candidate of the tuning protocol)
-    :return: the run's row: task, score, seconds, online ms per step, updates and reward curve
+    :return: the run's row: task, score, seconds, online ms per step, updates and reward curve (the source:
+        a random policy's; ``trained_source_runs`` for the other protocol)
     """
     family = family_named(family_name)
     targets = family.tasks_of(split)
@@ -78,16 +110,42 @@ def suite_run(
     if METHODS[method][1]:
         source = collect_source(family, n_source, SOURCE_SEED + run_seed)
     result: PeerResult = run_method(method, family, task, run_seed, source, n_online, settings)
-    return {
-        "run": run,
-        "task": task,
-        "seed": run_seed,
-        "score": float(result.rewards.mean()),
-        "seconds": result.seconds,
-        "online_ms_per_step": 1000.0 * result.online_seconds / n_online,
-        "updates": result.updates,
-        "rewards": result.rewards.tolist(),
-    }
+    return _row(run, task, run_seed, result, n_online)
+
+
+def trained_source_runs(
+    family_name: str,
+    methods: Sequence[str],
+    run: int,
+    seed: int,
+    split: str,
+    n_source: int,
+    n_online: int,
+) -> list[dict[str, Any]]:
+    """
+    Run ``run`` of each of ``methods`` over the trained protocol's source: the replay buffer of a DQN trained
+    on the source weights for ``n_source`` steps (``sources.trained_source``, seed ``SOURCE_SEED + seed +
+    run``), trained once for all of them (a module-level function of its arguments alone, for the workers
+    and the run cache, which keeps the run of every method at once).
+
+    :param family_name: a key of ``FAMILIES``
+    :param methods: keys of ``METHODS`` that take a source
+    :param run: the run's index: its target weight and seed
+    :param seed: the suite's seed
+    :param split: the weights targeted, ``"evaluation"`` (or ``"tuning"``)
+    :param n_source: the source DQN's steps: the source's rows
+    :param n_online: online transitions
+    :return: each method's row, as ``suite_run``'s
+    """
+    family = family_named(family_name)
+    targets = family.tasks_of(split)
+    task = int(targets[run % len(targets)])
+    run_seed = seed + run
+    source = trained_source(family, n_source, SOURCE_SEED + run_seed)
+    return [
+        _row(run, task, run_seed, run_method(method, family, task, run_seed, source, n_online), n_online)
+        for method in methods
+    ]
 
 
 def aggregate(rows: Sequence[Mapping[str, Any]], seed: int = 0) -> dict[str, Any]:
@@ -245,9 +303,11 @@ def run_suite(
     split: str = "evaluation",
     n_source: int | None = None,
     n_online: int | None = None,
+    source_policy: str = "random",
 ) -> dict[str, Any]:
     """
-    ``runs`` runs of each method on a family; write ``mo_suite_<family>.csv``, ``.json`` and ``.png``.
+    ``runs`` runs of each method on a family; write ``suite_name(family, source_policy)`` ``.csv``, ``.json``
+    and ``.png``.
 
     :param family_name: a key of ``FAMILIES``
     :param out: output directory (created if needed)
@@ -257,8 +317,9 @@ def run_suite(
     :param methods: keys of ``METHODS`` (None: all)
     :param cache: directory of finished runs, reused and completed (None: none)
     :param split: the target weights, ``"evaluation"`` or ``"tuning"``
-    :param n_source: source transitions (None: the family's)
+    :param n_source: source transitions (None: the family's); under ``"trained"``, the source DQN's steps
     :param n_online: online transitions (None: the family's)
+    :param source_policy: the source protocol, ``"random"`` or ``"trained"`` (``sources.SOURCE_POLICIES``)
     :return: the JSON summary
     """
     family: Family = family_named(family_name)
@@ -268,32 +329,48 @@ def run_suite(
         raise ValueError(f"methods must be among {', '.join(METHODS)}, got {unknown}")
     if runs < 1:
         raise ValueError(f"runs must be >= 1, got {runs}")
+    if source_policy not in SOURCE_POLICIES:
+        raise ValueError(f"source_policy must be one of {', '.join(SOURCE_POLICIES)}, got {source_policy!r}")
     family.tasks_of(split)  # refused before anything runs
     started = time.perf_counter()
     n_source = family.n_source if n_source is None else n_source
     n_online = family.n_online if n_online is None else n_online
-    jobs: list[tuple[tuple, dict[str, Any]]] = [
-        ((family.name, method, run, seed, split, n_source, n_online), {})
-        for method in methods
-        for run in range(runs)
-    ]
+    # Under the trained protocol, the methods without a source are the random protocol's runs (one cache).
+    sourced = [method for method in methods if METHODS[method][1]] if source_policy == "trained" else []
+    plain = [method for method in methods if method not in sourced]
+    label = f"{family.name} ({source_policy} source)"
     rows = run_jobs(
         suite_run,
-        jobs,
+        [
+            ((family.name, method, run, seed, split, n_source, n_online), {})
+            for method in plain
+            for run in range(runs)
+        ],
         workers,
-        description=f"{family.name}: {len(methods)} methods x {runs} runs",
+        description=f"{label}: {len(plain)} methods x {runs} runs",
         cache=cache,
     )
-    by_method = {method: rows[i * runs : (i + 1) * runs] for i, method in enumerate(methods)}
+    by_method = {method: rows[i * runs : (i + 1) * runs] for i, method in enumerate(plain)}
+    if sourced:
+        per_run = run_jobs(
+            trained_source_runs,
+            [((family.name, sourced, run, seed, split, n_source, n_online), {}) for run in range(runs)],
+            workers,
+            description=f"{label}: a source DQN and {len(sourced)} methods x {runs} runs",
+            cache=cache,
+        )
+        by_method.update({method: [rows[i] for rows in per_run] for i, method in enumerate(sourced)})
+    by_method = {method: by_method[method] for method in methods}
     results = {method: aggregate(method_rows, seed) for method, method_rows in by_method.items()}
     if "random" in by_method:
         for method, entry in results.items():
             entry["gain_over_random"] = paired_gain(by_method[method], by_method["random"])
     out.mkdir(parents=True, exist_ok=True)
-    name = f"mo_suite_{family.name}"
+    name = suite_name(family.name, source_policy)
     write_rows(out / f"{name}.csv", by_method)
+    source = "random" if source_policy == "random" else "trained DQN's"
     title = (
-        f"{family.env_id}: {n_source:,} random source transitions, {n_online:,} online steps, "
+        f"{family.env_id}: {n_source:,} {source} source transitions, {n_online:,} online steps, "
         f"{runs} runs on held-out weights ({split})"
     )
     plot_bars(out / f"{name}.png", title, results)
@@ -303,6 +380,7 @@ def run_suite(
             "family": family.name,
             **family.parameters(),
             "source_transitions": n_source,
+            "source_policy": source_policy,
             "online_transitions": n_online,
             "runs": runs,
             "split": split,
@@ -368,6 +446,40 @@ def goal_table(datas: Sequence[Mapping[str, Any]]) -> str:
                 f"{_fraction_cell(fraction, goal.get('fraction_ci95'))} | "
                 f"{'n/a' if fraction is None else _yes(fraction >= 0.7)} |"
             )
+    return "\n".join(lines)
+
+
+def protocol_table(datas: Sequence[Mapping[str, Any]], methods: Sequence[str] = PROTOCOL_METHODS) -> str:
+    """
+    The Markdown table of the two source protocols side by side: one row per family and method of
+    ``methods``, its score (mean ± standard error) and its gain over the random policy on the same runs
+    (paired), over a random policy's source and over a trained DQN's; a cell is empty where that protocol's
+    summary is not among ``datas`` or lacks the method.
+
+    :param datas: summaries of ``run_suite`` under either protocol (their ``source_policy`` tells which)
+    :param methods: the methods, in their rows' order
+    """
+    by_family: dict[str, dict[str, Mapping[str, Any]]] = {}
+    for data in datas:
+        parameters = data["parameters"]
+        by_family.setdefault(parameters["family"], {})[parameters.get("source_policy", "random")] = data
+    header = "| family | method |" + "".join(
+        f" {policy} source: score | {policy} source: gain over random |" for policy in SOURCE_POLICIES
+    )
+    lines = [header, "|---|---|" + "---|---|" * len(SOURCE_POLICIES)]
+    for family, protocols in by_family.items():
+        for method in methods:
+            cells = []
+            for policy in SOURCE_POLICIES:
+                entry = protocols.get(policy, {}).get("results", {}).get(method)
+                if entry is None:
+                    cells += ["", ""]
+                    continue
+                gain = entry.get("gain_over_random")
+                cells.append(f"{entry['score']['mean']:.3f} ± {entry['score']['se']:.3f}")
+                cells.append("" if gain is None else f"{gain['mean']:+.3f} ± {gain['se']:.3f}")
+            if any(cells):
+                lines.append(f"| {family} | {METHODS[method][0]} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
